@@ -1,0 +1,1 @@
+"""Sub-commands of the ``tof-fpn`` CLI (see :mod:`tof_fpn_torch.cli`)."""
