@@ -1,0 +1,83 @@
+"""Raw-level ToF simulator, the paper's depth-domain noise model and test scenes.
+
+* :mod:`~tof_fpn_torch.sim.camera` -- :class:`Camera` settings; eq. (1) decoder
+  :func:`depth_from_samples` / :class:`DepthFromSamples`.
+* :mod:`~tof_fpn_torch.sim.terms` -- the named physical terms (photons, shot noise, read-out FPN,
+  read noise, ADC, impulsive pixels).
+* :mod:`~tof_fpn_torch.sim.simulator` -- :class:`Simulation` (camera + list of terms) and
+  :func:`simulate`.
+* :mod:`~tof_fpn_torch.sim.depth_model` -- eq. (2) noise and the eq. (10) FPN in the depth domain.
+* :mod:`~tof_fpn_torch.sim.scenes` -- :class:`Scene`, :func:`synthetic_scene` (Fig. 7) and
+  :func:`planar_scene` (Sec. IV-A).
+
+See docs/simulator.md for derivations and measured figures.
+"""
+
+from .camera import (
+    SPEED_OF_LIGHT_AIR,
+    Camera,
+    DepthFromSamples,
+    depth_from_samples,
+    unambiguous_range,
+)
+from .depth_model import (
+    FPN_ALPHA,
+    FPN_BETA,
+    FPN_GAMMA,
+    LOW_SENSING_THRESHOLD,
+    DepthFPN,
+    add_depth_fpn,
+    add_depth_noise,
+    depth_noise_std,
+    fpn_intensity,
+    fpn_pattern,
+    noise_lambda,
+)
+from .scenes import MATERIALS, Scene, planar_scene, synthetic_scene
+from .simulator import SimResult, Simulation, simulate
+from .terms import (
+    ADC,
+    ImpulsivePixels,
+    Photons,
+    ReadNoise,
+    ReadoutFPN,
+    ShotNoise,
+    SimState,
+    Term,
+    default_terms,
+)
+
+__all__ = [
+    "ADC",
+    "FPN_ALPHA",
+    "FPN_BETA",
+    "FPN_GAMMA",
+    "LOW_SENSING_THRESHOLD",
+    "MATERIALS",
+    "SPEED_OF_LIGHT_AIR",
+    "Camera",
+    "DepthFPN",
+    "DepthFromSamples",
+    "ImpulsivePixels",
+    "Photons",
+    "ReadNoise",
+    "ReadoutFPN",
+    "Scene",
+    "ShotNoise",
+    "SimResult",
+    "SimState",
+    "Simulation",
+    "Term",
+    "add_depth_fpn",
+    "add_depth_noise",
+    "default_terms",
+    "depth_from_samples",
+    "depth_noise_std",
+    "fpn_intensity",
+    "fpn_pattern",
+    "noise_lambda",
+    "planar_scene",
+    "simulate",
+    "synthetic_scene",
+    "unambiguous_range",
+]
