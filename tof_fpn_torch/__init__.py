@@ -4,14 +4,24 @@ Offline design (NumPy/SciPy): :mod:`tof_fpn_torch.design`, :mod:`tof_fpn_torch.r
 """
 
 from .design import FPNDesign, design_fpn, design_fpn_filter
+from .fpn_filter import FPNFilter
+from .fusion import AmplitudeFusion
 from .remez import RemezConvergenceError
+from .stripes import StripeComponent, StripeEstimate, estimate_stripes
+from .suppression import FPNSuppression
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "AmplitudeFusion",
     "FPNDesign",
+    "FPNFilter",
+    "FPNSuppression",
     "RemezConvergenceError",
+    "StripeComponent",
+    "StripeEstimate",
     "__version__",
     "design_fpn",
     "design_fpn_filter",
+    "estimate_stripes",
 ]

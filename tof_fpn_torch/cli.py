@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 #: Sub-command modules under ``tof_fpn_torch.commands``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("design",)
+COMMANDS: tuple[str, ...] = ("design", "export")
 
 
 def build_parser() -> argparse.ArgumentParser:
