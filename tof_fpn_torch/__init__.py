@@ -3,10 +3,13 @@
 Offline design (NumPy/SciPy): :mod:`tof_fpn_torch.design`, :mod:`tof_fpn_torch.remez`.
 """
 
+from . import metrics, sim
 from .design import FPNDesign, design_fpn, design_fpn_filter
 from .fpn_filter import FPNFilter
 from .fusion import AmplitudeFusion
+from .metrics import psnr
 from .remez import RemezConvergenceError
+from .sim import Camera, Scene, Simulation, planar_scene, synthetic_scene
 from .stripes import StripeComponent, StripeEstimate, estimate_stripes
 from .suppression import FPNSuppression
 
@@ -14,14 +17,22 @@ __version__ = "0.1.0"
 
 __all__ = [
     "AmplitudeFusion",
+    "Camera",
     "FPNDesign",
     "FPNFilter",
     "FPNSuppression",
     "RemezConvergenceError",
+    "Scene",
+    "Simulation",
     "StripeComponent",
     "StripeEstimate",
     "__version__",
     "design_fpn",
     "design_fpn_filter",
     "estimate_stripes",
+    "metrics",
+    "planar_scene",
+    "psnr",
+    "sim",
+    "synthetic_scene",
 ]

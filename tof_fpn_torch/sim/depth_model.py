@@ -36,7 +36,7 @@ of the FPN power per low-sensing range, ``k(300) = 0.251 e^{-1.983} = 3.46 % < 5
 monotone and bounded (a pixel with no light has a bounded FPN, the depth error of the raw model
 saturates as the phase becomes uniform). Forms rejected: ``exp(alpha + gamma e^{-beta A})``
 (``3.6 = 361 %`` at ``A = 0``), ``gamma A^alpha + beta`` and ``(beta A)^alpha gamma`` (unbounded
-at ``A -> 0``), ``(gamma + alpha ln(beta A)) %`` (negative above ``A = 312``). With our
+at ``A -> 0``), ``(gamma + alpha ln(beta A)) %`` (negative above ``A = 313``). With our
 :func:`~tof_fpn_torch.sim.scenes.synthetic_scene` the form gives an FPN-only input PSNR close to
 Table I's 24.51 dB (see docs/simulator.md for the measured figure and command). This is a
 reconstruction; ``alpha``, ``beta``, ``gamma`` and ``A_LS`` are fields, so the shape can be refit.
