@@ -70,11 +70,13 @@ def median_time(fn, repeats: int) -> float:
 def laws() -> None:
     """Print the measured noise law, FPN growth and eq. (10) calibration figures of the docs."""
     from tof_fpn_torch.metrics import psnr
-    from tof_fpn_torch.sim import DepthFPN, Scene, noise_lambda
+    from tof_fpn_torch.sim import (
+        DepthFPN,
+        depth_noise_vs_amplitude,
+        fpn_error_vs_amplitude,
+        noise_lambda,
+    )
 
-    h, w, frames = 16, 24, 64
-    d = torch.linspace(1.0, 3.0, w).view(1, 1, 1, w).expand(1, 1, h, w).contiguous()
-    scene = Scene(d, torch.full_like(d, 0.5))
     cam = Camera(
         integration_time=1e-3,
         ambient_irradiance=20.0,
@@ -82,39 +84,23 @@ def laws() -> None:
         conversion_gain=100.0,
         adc_bits=16,
     )
-    out = Simulation(cam).without("readout_fpn").run(scene, frames, seed=1)
-    sigma = out.depth.view(frames, h, w).std(dim=0).mean(dim=0)
-    amp = out.amplitude.view(frames, h, w).mean(dim=(0, 1))
-    off = out.offset.view(frames, h, w).mean(dim=(0, 1))
-    slope = np.polyfit(np.log(amp.numpy()), np.log(sigma.numpy()), 1)[0]
-    ratio = (torch.sqrt(noise_lambda(cam, off)) / amp / sigma).numpy()
+    c = depth_noise_vs_amplitude(Simulation(cam).without("readout_fpn"), seed=1)
+    ratio = (torch.sqrt(noise_lambda(cam, c.offset)) / c.amplitude / c.value).numpy()
     print(
-        f"ambient-dominated: A {float(amp.min()):.0f}..{float(amp.max()):.0f} DN, "
-        f"log-log slope of sigma_D vs A = {slope:.3f}; eq. (2) prediction / measured = "
+        f"ambient-dominated: A {float(c.amplitude.min()):.0f}..{float(c.amplitude.max()):.0f} DN, "
+        f"log-log slope of sigma_D vs A = {c.slope:.3f}; eq. (2) prediction / measured = "
         f"{ratio.min():.3f}..{ratio.max():.3f}"
     )
     cam2 = Camera(
         integration_time=200e-6, ambient_irradiance=0.0, read_noise=0.0, full_well=2e6, adc_bits=16
     )
-    out = Simulation(cam2).without("readout_fpn").run(scene, frames, seed=2)
-    sigma = out.depth.view(frames, h, w).std(dim=0).mean(dim=0)
-    amp = out.amplitude.view(frames, h, w).mean(dim=(0, 1))
-    slope2 = np.polyfit(np.log(amp.numpy()), np.log(sigma.numpy()), 1)[0]
-    print(f"active-shot-limited: log-log slope = {slope2:.3f} (1/sqrt(A) expected)")
-    # FPN depth error vs amplitude (raw model, no temporal noise)
-    from tof_fpn_torch.sim import ADC
-
-    h, w = 24, 60
-    rho = torch.logspace(-2, 0, h).view(1, 1, h, 1).expand(1, 1, h, w).contiguous()
-    sc = Scene(torch.full_like(rho, 2.5), rho)
-    c = Camera(integration_time=100e-6)
-    clean = Simulation(c, [Photons(), ADC(quantize=False)]).run(sc)
-    fpn = Simulation(c, [Photons(), ReadoutFPN(), ADC(quantize=False)]).run(sc)
-    err = (fpn.depth - clean.depth).abs().mean(dim=3).flatten()
-    a = clean.amplitude.mean(dim=3).flatten()
-    for i in (0, h // 2, h - 1):
+    c2 = depth_noise_vs_amplitude(Simulation(cam2).without("readout_fpn"), seed=2)
+    print(f"active-shot-limited: log-log slope = {c2.slope:.3f} (1/sqrt(A) expected)")
+    f = fpn_error_vs_amplitude(Simulation(Camera(integration_time=100e-6)))
+    for i in (0, len(f.value) // 2, len(f.value) - 1):
         print(
-            f"raw FPN: A = {float(a[i]):7.1f} DN -> mean |depth error| = {float(err[i]) * 100:.2f} cm"
+            f"raw FPN: A = {float(f.amplitude[i]):7.1f} DN -> mean |depth error| = "
+            f"{float(f.value[i]) * 100:.2f} cm"
         )
     # eq. (10) reconstruction on the synthetic scene vs Table I's FPN-only input 24.51 dB
     vals = []

@@ -21,6 +21,9 @@ from tof_fpn_torch.sim import (
     ShotNoise,
     Simulation,
     depth_from_samples,
+    depth_noise_vs_amplitude,
+    fpn_error_vs_amplitude,
+    loglog_slope,
     noise_lambda,
     simulate,
     synthetic_scene,
@@ -88,22 +91,8 @@ def test_decoder_errors():
 # ----------------------------------------------------------------------------- noise laws
 
 
-def _ramp_scene(h=16, w=24, dmin=1.0, dmax=3.0, rho=0.5):
-    d = torch.linspace(dmin, dmax, w).view(1, 1, 1, w).expand(1, 1, h, w).contiguous()
-    return Scene(d, torch.full_like(d, rho))
-
-
-def _per_column(out, frames, h, w):
-    depth = out.depth.view(frames, h, w)
-    sigma = depth.std(dim=0).mean(dim=0)
-    amp = out.amplitude.view(frames, h, w).mean(dim=(0, 1))
-    off = out.offset.view(frames, h, w).mean(dim=(0, 1))
-    return sigma, amp, off
-
-
 def test_depth_noise_follows_inverse_amplitude():
     """sigma_D ~ 1/A (eq. 2) where the per-sample noise does not grow with A (ambient-dominated)."""
-    h, w, frames = 16, 24, 64
     cam = Camera(
         integration_time=1e-3,
         ambient_irradiance=20.0,
@@ -111,27 +100,25 @@ def test_depth_noise_follows_inverse_amplitude():
         conversion_gain=100.0,
         adc_bits=16,
     )
-    out = Simulation(cam).without("readout_fpn").run(_ramp_scene(h, w), frames, seed=1)
-    sigma, amp, off = _per_column(out, frames, h, w)
+    curve = depth_noise_vs_amplitude(Simulation(cam).without("readout_fpn"), seed=1)
+    amp, sigma = curve.amplitude, curve.value
     assert float(amp.max() / amp.min()) > 8  # about a decade of amplitudes
-    slope = np.polyfit(np.log(amp.numpy()), np.log(sigma.numpy()), 1)[0]
+    slope = np.polyfit(np.log(amp.numpy()), np.log(sigma.numpy()), 1)[0]  # independent fit
     assert -1.1 < slope < -0.9, slope
+    assert abs(curve.slope - slope) < 1e-6
     # and the level matches the derived lambda of eq. (2)
-    predicted = torch.sqrt(noise_lambda(cam, off)) / amp
+    predicted = torch.sqrt(noise_lambda(cam, curve.offset)) / amp
     ratio = predicted / sigma
     assert float(ratio.min()) > 0.9 and float(ratio.max()) < 1.1, ratio
 
 
 def test_shot_limited_noise_is_not_inverse_amplitude():
     """With only the active light's shot noise, sigma_D ~ 1/sqrt(A): the 1/A law is regime-bound."""
-    h, w, frames = 16, 24, 64
     cam = Camera(
         integration_time=200e-6, ambient_irradiance=0.0, read_noise=0.0, full_well=2e6, adc_bits=16
     )
-    out = Simulation(cam).without("readout_fpn").run(_ramp_scene(h, w), frames, seed=2)
-    sigma, amp, _ = _per_column(out, frames, h, w)
-    slope = np.polyfit(np.log(amp.numpy()), np.log(sigma.numpy()), 1)[0]
-    assert -0.6 < slope < -0.4, slope
+    curve = depth_noise_vs_amplitude(Simulation(cam).without("readout_fpn"), seed=2)
+    assert -0.6 < curve.slope < -0.4, curve.slope
 
 
 def test_poisson_shot_noise_statistics():
@@ -150,17 +137,11 @@ def test_poisson_shot_noise_statistics():
 
 
 def test_fpn_error_grows_as_amplitude_falls():
-    h, w = 24, 60
-    rho = torch.logspace(-2, 0, h).view(1, 1, h, 1).expand(1, 1, h, w).contiguous()
-    scene = Scene(torch.full_like(rho, 2.5), rho)
-    cam = Camera(integration_time=100e-6)
-    clean = Simulation(cam, [Photons(), ADC(quantize=False)]).run(scene)
-    fpn = Simulation(cam, [Photons(), ReadoutFPN(), ADC(quantize=False)]).run(scene)
-    err = (fpn.depth - clean.depth).abs().mean(dim=3).flatten()  # per row (per amplitude)
-    amp = clean.amplitude.mean(dim=3).flatten()
+    curve = fpn_error_vs_amplitude(Simulation(Camera(integration_time=100e-6)))
+    err, amp = curve.value, curve.amplitude
+    assert bool((amp[1:] > amp[:-1]).all()) and float(amp[-1] / amp[0]) > 50
     assert bool((err[1:] < err[:-1]).all()), err  # strictly falls as amplitude rises
     assert float(err[0] / err[-1]) > 5
-    assert float(amp[-1] / amp[0]) > 50
 
 
 def test_fpn_is_periodic_at_configured_frequencies_and_fixed():
@@ -292,3 +273,5 @@ def test_bad_scenes_and_terms():
         Photons(modulation_contrast=0.0)
     with pytest.raises(ValueError, match="unique"):
         Simulation(Camera(), [Photons(), Photons()])
+    with pytest.raises(ValueError, match="> 0"):
+        loglog_slope(torch.tensor([1.0, 0.0]), torch.tensor([1.0, 2.0]))

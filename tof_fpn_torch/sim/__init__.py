@@ -7,12 +7,14 @@
 * :mod:`~tof_fpn_torch.sim.simulator` -- :class:`Simulation` (camera + list of terms) and
   :func:`simulate`.
 * :mod:`~tof_fpn_torch.sim.depth_model` -- eq. (2) noise and the eq. (10) FPN in the depth domain.
+* :mod:`~tof_fpn_torch.sim.analysis` -- depth noise and FPN error against amplitude (Fig. 1).
 * :mod:`~tof_fpn_torch.sim.scenes` -- :class:`Scene`, :func:`synthetic_scene` (Fig. 7) and
   :func:`planar_scene` (Sec. IV-A).
 
 See docs/simulator.md for derivations and measured figures.
 """
 
+from .analysis import AmplitudeCurve, depth_noise_vs_amplitude, fpn_error_vs_amplitude, loglog_slope
 from .camera import (
     SPEED_OF_LIGHT_AIR,
     Camera,
@@ -49,6 +51,7 @@ from .terms import (
 
 __all__ = [
     "ADC",
+    "AmplitudeCurve",
     "FPN_ALPHA",
     "FPN_BETA",
     "FPN_GAMMA",
@@ -72,9 +75,12 @@ __all__ = [
     "add_depth_noise",
     "default_terms",
     "depth_from_samples",
+    "depth_noise_vs_amplitude",
     "depth_noise_std",
+    "fpn_error_vs_amplitude",
     "fpn_intensity",
     "fpn_pattern",
+    "loglog_slope",
     "noise_lambda",
     "planar_scene",
     "simulate",
