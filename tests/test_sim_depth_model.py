@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from tof_fpn_torch.metrics import psnr
 from tof_fpn_torch.sim import (
     FPN_ALPHA,
     FPN_BETA,
@@ -18,6 +19,8 @@ from tof_fpn_torch.sim import (
     depth_noise_std,
     fpn_intensity,
     fpn_pattern,
+    noise_lambda_for_psnr,
+    synthetic_scene,
 )
 
 FREQS = [math.pi, 2 * math.pi / 3]
@@ -118,3 +121,15 @@ def test_depth_model_errors():
         fpn_intensity(a, beta=0.0)
     with pytest.raises(ValueError, match="equal length"):
         fpn_pattern(8, FREQS, [0.0])
+
+
+def test_noise_lambda_for_psnr_reaches_the_target():
+    """Table I's protocol: FPN (about 24.5 dB) then noise down to 21.26 dB."""
+    scene = synthetic_scene(seed=0)
+    d_fpn = DepthFPN()(scene.depth, scene.amplitude)
+    lam = noise_lambda_for_psnr(scene.depth, d_fpn, scene.amplitude, 21.26, amplitude_floor=10.0)
+    g = torch.Generator().manual_seed(0)
+    noisy = add_depth_noise(d_fpn, scene.amplitude, lam, amplitude_floor=10.0, generator=g)
+    assert abs(float(psnr(noisy, scene.depth)) - 21.26) < 0.15
+    with pytest.raises(ValueError, match="above the PSNR"):
+        noise_lambda_for_psnr(scene.depth, d_fpn, scene.amplitude, 40.0)

@@ -34,6 +34,7 @@ from .depth_model import (
     fpn_intensity,
     fpn_pattern,
     noise_lambda,
+    noise_lambda_for_psnr,
 )
 from .scenes import MATERIALS, Scene, planar_scene, synthetic_scene
 from .simulator import SimResult, Simulation, simulate
@@ -82,6 +83,7 @@ __all__ = [
     "fpn_pattern",
     "loglog_slope",
     "noise_lambda",
+    "noise_lambda_for_psnr",
     "planar_scene",
     "simulate",
     "synthetic_scene",

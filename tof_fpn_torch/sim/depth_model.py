@@ -63,6 +63,7 @@ __all__ = [
     "fpn_intensity",
     "fpn_pattern",
     "noise_lambda",
+    "noise_lambda_for_psnr",
 ]
 
 FPN_ALPHA: float = -3.966
@@ -288,3 +289,43 @@ def noise_lambda(camera: Camera, offset: float | torch.Tensor) -> float | torch.
     rn = _as_float(camera.read_noise, "read_noise")
     v = offset / g + (rn / g) ** 2 + 1.0 / 12.0
     return (SPEED_OF_LIGHT_AIR / (4 * math.pi * f)) ** 2 * 2.0 * v / camera.n_phases
+
+
+def noise_lambda_for_psnr(
+    reference: torch.Tensor,
+    depth: torch.Tensor,
+    amplitude: torch.Tensor,
+    target_psnr: float,
+    *,
+    amplitude_floor: float = 1.0,
+    d_max: float = 7.5,
+) -> float:
+    """``lambda`` such that ``add_depth_noise(depth, amplitude, lambda)`` has, in expectation, PSNR
+    ``target_psnr`` (eq. 9) against ``reference``.
+
+    The added noise is independent of ``depth - reference``, so the expected MSE is
+    ``mean((depth - reference)^2) + lambda * mean(1 / max(A, floor)^2)`` over the valid pixels of
+    ``reference``; solving for ``lambda`` gives a closed form (all images of the batch pooled).
+    Use it to set the noise level of the paper's synthetic experiment (Table I, "noise added").
+
+    Raises:
+        ValueError: if ``depth`` alone is already below ``target_psnr`` (no lambda >= 0 reaches it).
+    """
+    _check_depth_amp(depth, amplitude)
+    if reference.shape != depth.shape:
+        raise ValueError(
+            f"reference must have the shape of depth {list(depth.shape)}, got {list(reference.shape)}"
+        )
+    valid = torch.isfinite(reference) & (reference > 0) & torch.isfinite(depth)
+    if not bool(valid.any()):
+        raise ValueError("no valid pixel (finite reference > 0 and finite depth)")
+    err = (depth - reference)[valid].double()
+    mse0 = float((err * err).mean())
+    inv_a2 = float((1.0 / torch.clamp(amplitude[valid].double(), min=amplitude_floor) ** 2).mean())
+    target_mse = d_max * d_max / 10.0 ** (float(target_psnr) / 10.0)
+    if target_mse < mse0:
+        have = 10 * math.log10(d_max * d_max / mse0) if mse0 > 0 else math.inf
+        raise ValueError(
+            f"target_psnr {target_psnr} dB is above the PSNR of depth without noise ({have:.2f} dB)"
+        )
+    return (target_mse - mse0) / inv_a2
