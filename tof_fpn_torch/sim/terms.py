@@ -117,7 +117,9 @@ class Term:
             v = getattr(self, f.name)
             if isinstance(v, (int, float, torch.Tensor)) and not isinstance(v, bool):
                 out[f.name] = v
-            elif isinstance(v, tuple) and all(isinstance(t, (int, float)) for t in v):
+            elif isinstance(v, tuple) and all(
+                isinstance(t, (int, float, torch.Tensor)) and not isinstance(t, bool) for t in v
+            ):
                 out[f.name] = v
         return out
 
