@@ -294,7 +294,7 @@ class FPNFilter(nn.Module):
         if self.compensated:
             d = half_sample_taps(compensation_length, compensation_band)
             t = torch.from_numpy(np.convolve(t.detach().double().cpu().numpy(), d))
-        t = t.to(torch.float32)
+        t = t.to(torch.float64)  # cast to the input's dtype per call; float64 keeps the design
         #: set by :mod:`tof_fpn_torch.export`: take the branch-free, exportable path
         self.export_mode = False
         self.design = None  # the FPNDesign when built by from_design

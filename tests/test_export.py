@@ -1,0 +1,124 @@
+"""TorchScript and ONNX export: exported graphs agree with eager; export mode == fast path; CLI."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tof_fpn_torch import FPNFilter, FPNSuppression
+from tof_fpn_torch.cli import main
+from tof_fpn_torch.export import export_onnx, export_torchscript, for_export
+
+ort = pytest.importorskip("onnxruntime")
+pytest.importorskip("onnx")
+
+
+def _inputs(shape, seed=0, holes=True):
+    g = torch.Generator().manual_seed(seed)
+    depth = 1.0 + torch.rand(shape, generator=g)
+    amplitude = 400.0 * torch.rand(shape, generator=g)
+    if holes:
+        depth[0, 0, 2, 3] = float("nan")
+        depth[-1, 0, 5, 7:11] = 0.0
+    return depth, amplitude
+
+
+def test_export_mode_equals_fast_path():
+    m = FPNSuppression(order=41, rho=0.12, dim=(-2, -1))
+    e = for_export(m)
+    assert e.filter.export_mode and not m.filter.export_mode
+    for holes in (False, True):
+        d, a = _inputs((2, 1, 50, 90), holes=holes)
+        with torch.inference_mode():
+            torch.testing.assert_close(e(d, a), m(d, a), rtol=0, atol=2e-6, equal_nan=True)
+
+
+def test_torchscript_file_roundtrip(tmp_path):
+    m = FPNSuppression()
+    path = tmp_path / "fpn.pt"
+    export_torchscript(m, path)
+    loaded = torch.jit.load(str(path))
+    d, a = _inputs((2, 1, 30, 64))
+    torch.testing.assert_close(loaded(d, a), m(d, a), rtol=0, atol=0, equal_nan=True)
+
+
+@pytest.fixture(scope="module")
+def cli_onnx(tmp_path_factory):
+    path = tmp_path_factory.mktemp("onnx") / "fpn.onnx"
+    assert (
+        main(
+            [
+                "export",
+                "--format",
+                "onnx",
+                "--out",
+                str(path),
+                "--order",
+                "41",
+                "--rho",
+                "0.12",
+                "--opset",
+                "17",
+            ]
+        )
+        == 0
+    )
+    return path
+
+
+@pytest.mark.parametrize("shape", [(2, 1, 64, 80), (1, 1, 33, 47), (3, 1, 8, 200)])
+def test_onnx_agrees_with_eager_dynamic_shapes(cli_onnx, shape):
+    import onnx
+
+    model = onnx.load(str(cli_onnx))
+    assert max(o.version for o in model.opset_import if o.domain in ("", "ai.onnx")) >= 17
+    sess = ort.InferenceSession(str(cli_onnx))
+    d, a = _inputs(shape)
+    (out,) = sess.run(None, {"depth": d.numpy(), "amplitude": a.numpy()})
+    ref = FPNSuppression(order=41, rho=0.12)(d, a).numpy()
+    np.testing.assert_array_equal(np.isnan(out), np.isnan(ref))
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5, equal_nan=True)
+
+
+def test_cli_torchscript(tmp_path, capsys):
+    path = tmp_path / "m.pt"
+    assert (
+        main(
+            [
+                "export",
+                "--format",
+                "torchscript",
+                "--out",
+                str(path),
+                "--dim",
+                "rows",
+                "--no-adaptive",
+            ]
+        )
+        == 0
+    )
+    assert '"format": "torchscript"' in capsys.readouterr().out
+    d, a = _inputs((1, 1, 40, 30))
+    ref = FPNSuppression(dim=-2, adaptive=False)(d, a)
+    torch.testing.assert_close(torch.jit.load(str(path))(d, a), ref, rtol=0, atol=0, equal_nan=True)
+
+
+def test_cli_bad_input_is_one_line_error(tmp_path, capsys):
+    assert (
+        main(["export", "--format", "onnx", "--out", str(tmp_path / "x.onnx"), "--opset", "13"])
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert "opset must be an int >= 17, got 13" in err and "Traceback" not in err
+    assert (
+        main(["export", "--format", "torchscript", "--out", str(tmp_path / "y.pt"), "--rho", "0.9"])
+        == 2
+    )
+
+
+def test_export_onnx_rejects_non_module(tmp_path):
+    with pytest.raises(ValueError, match="torch.nn.Module"):
+        export_onnx("not a module", tmp_path / "z.onnx")
+    with pytest.raises(ValueError, match="torch.nn.Module"):
+        export_torchscript(FPNFilter)  # the class, not an instance
