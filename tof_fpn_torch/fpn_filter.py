@@ -28,7 +28,6 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from ._checks import check_image, check_taps, normalize_dims
@@ -136,10 +135,11 @@ def _fir_blocked(
     r, w = x2.shape[0], x2.shape[1]
     nb = (w + block - 1) // block
     q = (nb + 1) * block
-    xp = F.pad(_pad_last(x2, left, right, mode), [0, q - (w + p)])
+    xp = _pad_last(x2, left, right, mode)
+    xp = torch.cat([xp, xp.new_zeros(r, q - (w + p))], 1)  # cat, not F.pad: exports to opset 17
     xb = xp.reshape(r * (nb + 1), block)
     y = xb[:-1].matmul(t0) + xb[1:, :p].matmul(t1)
-    return F.pad(y, [0, 0, 0, 1]).reshape(r, q)[:, :w]
+    return torch.cat([y, y.new_zeros(1, block)]).reshape(r, q)[:, :w]
 
 
 def _fir_inplace(
