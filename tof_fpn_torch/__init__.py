@@ -3,7 +3,8 @@
 Offline design (NumPy/SciPy): :mod:`tof_fpn_torch.design`, :mod:`tof_fpn_torch.remez`.
 """
 
-from . import metrics, sim
+from . import denoise, metrics, sim
+from .denoise import NonLocalMeans, non_local_means
 from .design import FPNDesign, design_fpn, design_fpn_filter
 from .fpn_filter import FPNFilter
 from .fusion import AmplitudeFusion
@@ -21,16 +22,19 @@ __all__ = [
     "FPNDesign",
     "FPNFilter",
     "FPNSuppression",
+    "NonLocalMeans",
     "RemezConvergenceError",
     "Scene",
     "Simulation",
     "StripeComponent",
     "StripeEstimate",
     "__version__",
+    "denoise",
     "design_fpn",
     "design_fpn_filter",
     "estimate_stripes",
     "metrics",
+    "non_local_means",
     "planar_scene",
     "psnr",
     "sim",

@@ -1,0 +1,11 @@
+"""Denoisers for depth maps (run-time path: torch only).
+
+- :class:`NonLocalMeans` / :func:`non_local_means`: non-local means (Buades et al. 2005) with
+  per-pixel noise from the amplitude (eq. 2 of Georgiev et al. 2015) and invalid-pixel handling.
+- :func:`estimate_sigma`, :func:`estimate_noise_k`: robust noise-level estimators.
+"""
+
+from ._sigma import estimate_noise_k, estimate_sigma
+from .nlm import NonLocalMeans, non_local_means
+
+__all__ = ["NonLocalMeans", "estimate_noise_k", "estimate_sigma", "non_local_means"]
