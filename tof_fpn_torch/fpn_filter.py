@@ -250,7 +250,7 @@ class FPNFilter(nn.Module):
 
     Invalid pixels (NaN/inf, zeros if ``zero_is_invalid``, or ``mask == False``) are first filled
     along the filtering axis by normalized convolution with a triangular window of half-width
-    ``L`` (``sum w v x / sum w v`` over valid ``v``; the line mean where a gap is wider), the filter
+    ``L // 2 + 1`` (``sum w v x / sum w v`` over valid ``v``; the line mean where a gap is wider), the filter
     runs on the filled image, and the invalid pixels are written back unchanged (NaN stays NaN,
     0 stays 0). So no invalid value reaches a valid output, and nothing is smeared.
 
