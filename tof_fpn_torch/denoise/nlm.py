@@ -161,21 +161,14 @@ def _box_flat(
     return o
 
 
-def _offset_groups(d: int, group: int) -> list[tuple[int, int, int, int, int]]:
-    """Half of the search window without 0 (``t_x > 0``, or ``t_x = 0`` and ``t_y > 0``) in runs
-    ``(ty0, tx0, dy, dx, K)`` of ``K <= group`` offsets ``(ty0 + j dy, tx0 + j dx)``."""
-    out: list[tuple[int, int, int, int, int]] = []
+def _offsets(d: int) -> list[tuple[int, int]]:
+    """Half of the search window without 0: ``t_x > 0``, or ``t_x = 0`` and ``t_y > 0``."""
+    out: list[tuple[int, int]] = []
     for ty in range(-d, d + 1):
-        tx = 1
-        while tx <= d:
-            K = min(group, d - tx + 1)
-            out.append((ty, tx, 0, 1, K))
-            tx += K
-    ty = 1
-    while ty <= d:
-        K = min(group, d - ty + 1)
-        out.append((ty, 0, 1, 0, K))
-        ty += K
+        for tx in range(1, d + 1):
+            out.append((ty, tx))
+    for ty in range(1, d + 1):
+        out.append((ty, 0))
     return out
 
 
@@ -187,14 +180,17 @@ def _nlm_core(
     s: int,
     d: int,
     h: float,
-    group: int,
     taps: list[float],
 ) -> torch.Tensor:
-    """NLM of one batch chunk, ``group`` offsets per vectorised pass, patch ``taps``
-    (:func:`_patch_taps`). ``x`` (B, C, H, W) float32/64, zero where invalid; ``valid``
-    (B, 1, H, W) 0/1 in the dtype of ``x`` or None (all valid); ``scale`` (B, 1, 1, 1) folds
-    ``sqrt(log2 e) / (h sigma sqrt(C))`` (and ``1 / s`` without mask) into the input;
-    ``half_var`` (B, 1, H, W) ``sigma^2 / 2`` for the noise-map path, else None."""
+    """NLM of one batch chunk with patch ``taps`` (:func:`_patch_taps`). ``x`` (B, C, H, W)
+    float32/64, zero where invalid; ``valid`` (B, 1, H, W) 0/1 in the dtype of ``x`` or None
+    (all valid); ``scale`` (B, 1, 1, 1) folds ``sqrt(log2 e) / (h sigma sqrt(C))`` (and ``1 / s``
+    without mask) into the input; ``half_var`` (B, 1, H, W) ``sigma^2 / 2`` for the noise-map
+    path, else None.
+
+    Every per-offset op is a 1-D op on the flat padded grid (row stride ``Wp``, image stride
+    ``Hp * Wp``): the shifted copy of the padded image is a flat slice, and the columns and rows
+    that fall outside an offset's region hold garbage that is never read."""
     B, C, H, W = x.shape
     r = s // 2
     E = d + r
@@ -203,16 +199,20 @@ def _nlm_core(
     bias = 2.0 * 1.4426950408889634 / (h * h)
     fold = valid is None and half_var is None
     cb = torch.full([], bias / (s * s) if fold else bias, dtype=dt, device=dev)
-    xp = _reflect_pad(x * scale, E).contiguous()
-    if valid is None:
-        vals = torch.cat([x, torch.ones_like(x[:, :1])], 1)
-    else:
-        vals = torch.cat([x, valid], 1)
+    xp = _reflect_pad(x * scale, E).contiguous()  # (B, C, Hp, Wp)
+    Hp = xp.shape[2]
+    Wp = xp.shape[3]
+    plane = Hp * Wp
+    xpf = xp.reshape(-1)
+    vals = x if valid is None else x * valid
     xvp = _reflect_pad(vals, d)
-    acc = vals.clone()
-    vp = torch.empty(0, dtype=dt, device=dev)
+    num = vals.clone()
+    den = torch.ones_like(x[:, :1]) if valid is None else valid.clone()
+    vpf = torch.empty(0, dtype=dt, device=dev)
+    vdp = torch.empty(0, dtype=dt, device=dev)
     if valid is not None:
-        vp = _reflect_pad(valid, E).contiguous()
+        vpf = _reflect_pad(valid, E).contiguous().reshape(-1)
+        vdp = _reflect_pad(valid, d)
     vbar = torch.empty(0, dtype=dt, device=dev)
     if half_var is not None:
         hvp = _reflect_pad(half_var, E)
@@ -221,13 +221,12 @@ def _nlm_core(
         if valid is None:
             vbar = F.conv2d(hvp, g2)
         else:
-            vbar = F.conv2d(hvp * vp, g2) / F.conv2d(vp, g2).clamp_min(1e-6)
+            vpp = vpf.view(B, 1, Hp, Wp)
+            vbar = F.conv2d(hvp * vpp, g2) / F.conv2d(vpp, g2).clamp_min(1e-6)
         vbar = vbar.clamp_min(1e-30)  # (B, 1, H + 2d, W + 2d)
 
-    hh_max = H + d + 2 * r
-    ww_max = W + d + 2 * r
-    n1 = B * group * hh_max * ww_max
-    diff = torch.empty(n1 * C, dtype=dt, device=dev)
+    diff = torch.empty(B * C * plane, dtype=dt, device=dev)
+    n1 = B * plane
     sq = torch.empty(n1, dtype=dt, device=dev)
     t1 = torch.empty(n1, dtype=dt, device=dev)
     t2 = torch.empty(n1, dtype=dt, device=dev)
@@ -235,100 +234,79 @@ def _nlm_core(
     wb = torch.empty(n1, dtype=dt, device=dev)
     mm = torch.empty(n1 if valid is not None else 0, dtype=dt, device=dev)
     nb = torch.empty(n1 if valid is not None else 0, dtype=dt, device=dev)
-    s2 = torch.empty(
-        B * group * (H + d) * (W + d) if half_var is not None else 0, dtype=dt, device=dev
-    )
-    Hp = xp.shape[2]
-    Wp = xp.shape[3]
-    Wv = W + 2 * d  # width of vbar
+    s2 = torch.empty(B * (H + d) * (W + d) if half_var is not None else 0, dtype=dt, device=dev)
 
-    for ty0, tx0, dy, dx, K in _offset_groups(d, group):
-        ty_hi = ty0 + (K - 1) * dy
-        tx_hi = tx0 + (K - 1) * dx
-        y0 = min(0, -ty_hi)
-        x0 = -tx_hi
-        hr = H + max(0, -ty0) - y0
-        wr = W - x0
+    for ty, tx in _offsets(d):
+        y0 = min(0, -ty)  # weight region: rows [y0, y0 + hr), cols [-tx, W) in image coords
+        x0 = -tx
+        hr = H + abs(ty)
+        wr = W + tx
         hh = hr + 2 * r
-        ww = wr + 2 * r
-        ay = E + y0 - r
-        ax = E + x0 - r
-        n = B * K * hh * ww
-        step = dy * Wp + dx
-        # squared differences of the group's K shifted copies, (B, K, C, hh, ww)
-        dv = diff[: n * C].view(B, K, C, hh, ww)
-        torch.sub(
-            xp[:, :, ay : ay + hh, ax : ax + ww].unsqueeze(1),
-            xp.as_strided(
-                [B, K, C, hh, ww],
-                [C * Hp * Wp, step, Hp * Wp, Wp, 1],
-                (ay + ty0) * Wp + ax + tx0,
-            ),
-            out=dv,
-        )
+        a0 = (E + y0 - r) * Wp + (E + x0 - r)  # flat start of the patch pixels of p
+        b0 = a0 + ty * Wp + tx  # ... and of p + t
+        tail = (hh - 1) * Wp + wr + 2 * r  # flat extent of one image's region
+        n = (B - 1) * plane + tail
+        nc = (B * C - 1) * plane + tail
+        dff = diff[:nc]
+        torch.sub(xpf[a0 : a0 + nc], xpf[b0 : b0 + nc], out=dff)
         if valid is not None:
-            mmv = mm[:n].view(B, K, 1, hh, ww)
-            torch.mul(
-                vp[:, :, ay : ay + hh, ax : ax + ww].unsqueeze(1),
-                vp.as_strided(
-                    [B, K, 1, hh, ww], [Hp * Wp, step, Hp * Wp, Wp, 1], (ay + ty0) * Wp + ax + tx0
-                ),
-                out=mmv,
-            )
-            dv.mul_(mmv)
+            mmf = mm[:n]
+            torch.mul(vpf[a0 : a0 + n], vpf[b0 : b0 + n], out=mmf)
+            if C == 1:
+                dff.mul_(mmf)
+            else:
+                dv = diff[: B * C * plane].view(B, C, plane)[:, :, :tail]
+                dv.mul_(mm[: B * plane].view(B, 1, plane)[:, :, :tail])
         sqf = sq[:n]
         if C == 1:
-            df = diff[:n]
             if fold:
-                torch.addcmul(cb, df, df, value=-1.0, out=sqf)
+                torch.addcmul(cb, dff, dff, value=-1.0, out=sqf)
             else:
-                torch.mul(df, df, out=sqf)
+                torch.mul(dff, dff, out=sqf)
         else:
-            dv.mul_(dv)
-            torch.sum(dv, 2, keepdim=True, out=sqf.view(B, K, 1, hh, ww))
+            dff.mul_(dff)
+            torch.sum(
+                diff[: B * C * plane].view(B, C, plane)[:, :, :tail],
+                1,
+                out=sq[: B * plane].view(B, plane)[:, :tail],
+            )
             if fold:
                 torch.add(cb, sqf, alpha=-1.0, out=sqf)
-        # separable box sums on the flat buffers (rows keep s - 1 unread garbage columns)
+        # separable patch sums: the box/taps along a row, then along a column (step Wp)
         nh = n - (s - 1)
-        nv = nh - (s - 1) * ww
+        nv = nh - (s - 1) * Wp
         _box_flat(sqf, nh, s, 1, t1, t2, hb, taps)
-        wf = _box_flat(hb, nv, s, ww, t1, t2, wb, taps)
-        wv = wb.as_strided([B, K, hr, wr], [K * hh * ww, hh * ww, ww, 1])
+        wf = _box_flat(hb, nv, s, Wp, t1, t2, wb, taps)
+        wv = wb.as_strided([B, 1, hr, wr], [plane, plane, Wp, 1])
         if valid is not None:
             _box_flat(mm[:n], nh, s, 1, t1, t2, hb, taps)
-            nf = _box_flat(hb, nv, s, ww, t1, t2, nb, taps)
+            nf = _box_flat(hb, nv, s, Wp, t1, t2, nb, taps)
             wf.div_(nf.clamp_(min=1.0))
         if half_var is not None:
-            s2v = s2[: B * K * hr * wr].view(B, K, hr, wr)
+            s2v = s2[: B * hr * wr].view(B, 1, hr, wr)
             vy = d + y0
             vx = d + x0
             torch.add(
                 vbar[:, :, vy : vy + hr, vx : vx + wr],
-                vbar.as_strided(
-                    [B, K, hr, wr],
-                    [vbar.stride(0), dy * Wv + dx, Wv, 1],
-                    (vy + ty0) * Wv + vx + tx0,
-                ),
+                vbar[:, :, vy + ty : vy + ty + hr, vx + tx : vx + tx + wr],
                 out=s2v,
             )
             wv.div_(s2v)
         if not fold:
             torch.add(cb, wf, alpha=-1.0, out=wf)
         wf.clamp_(-100.0, 0.0).exp2_()
-        for j in range(K):
-            ty = ty0 + j * dy
-            tx = tx0 + j * dx
-            wj = wv[:, j : j + 1]
-            # pair (p, p + t): w at p weighs x(p + t), and at p + t weighs x(p)
-            acc.addcmul_(
-                wj[:, :, -y0 : -y0 + H, -x0 : -x0 + W],
-                xvp[:, :, d + ty : d + ty + H, d + tx : d + tx + W],
-            )
-            acc.addcmul_(
-                wj[:, :, -y0 - ty : -y0 - ty + H, -x0 - tx : -x0 - tx + W],
-                xvp[:, :, d - ty : d - ty + H, d - tx : d - tx + W],
-            )
-    return acc[:, :C] / acc[:, C:]
+        # pair (p, p + t): w at p weighs x(p + t), and at p + t weighs x(p)
+        wd = wv[:, :, -y0 : -y0 + H, -x0 : -x0 + W]
+        ws = wv[:, :, -y0 - ty : -y0 - ty + H, -x0 - tx : -x0 - tx + W]
+        num.addcmul_(wd, xvp[:, :, d + ty : d + ty + H, d + tx : d + tx + W])
+        num.addcmul_(ws, xvp[:, :, d - ty : d - ty + H, d - tx : d - tx + W])
+        if valid is None:
+            den.add_(wd)
+            den.add_(ws)
+        else:
+            den.addcmul_(wd, vdp[:, :, d + ty : d + ty + H, d + tx : d + tx + W])
+            den.addcmul_(ws, vdp[:, :, d - ty : d - ty + H, d - tx : d - tx + W])
+    return num / den
 
 
 def _check_sigma_tensor(sigma: torch.Tensor, B: int, H: int, W: int) -> None:
@@ -507,11 +485,8 @@ def _non_local_means(
             dtype=work_dtype,
             device=x.device,
         )
-    # offsets per vectorised pass: 1 on CPU (buffers stay in cache; measured fastest), a few on
-    # GPUs where fewer, larger kernels pay off
-    group = 1 if x.device.type == "cpu" else min(4, d)
     taps = _patch_taps(s, kernel)
-    per_image = C * group * (H + d + s) * (W + d + s)
+    per_image = C * (H + 2 * d + s) * (W + 2 * d + s)
     chunk = max(1, 2097152 // per_image)
     outs: list[torch.Tensor] = []
     for b0 in range(0, B, chunk):
@@ -522,7 +497,7 @@ def _non_local_means(
         hv: torch.Tensor | None = None
         if half_var is not None:
             hv = half_var[b0:b1]
-        outs.append(_nlm_core(x[b0:b1], vmask, scale[b0:b1], hv, s, d, h, group, taps))
+        outs.append(_nlm_core(x[b0:b1], vmask, scale[b0:b1], hv, s, d, h, taps))
     out = torch.cat(outs, 0)
     out = torch.where(valid, out, depth.detach().to(work_dtype))
     return out.to(depth.dtype)

@@ -1,0 +1,117 @@
+"""Speed of tof_fpn_torch's NonLocalMeans against OpenCV's fastNlMeansDenoising, side by side.
+
+Both denoise the same 424 x 512 uint16 depth frame (mm) with the same windows (patch 7 x 7,
+search 21 x 21: ``patch_distance = 10``); OpenCV needs ``normType=cv2.NORM_L1`` for 16-bit input.
+Calls alternate (OpenCV, torch eager, torch TorchScript, OpenCV, ...) so that machine load hits
+all of them alike; the headline is the median over repeats of the per-round time ratio.
+
+Threads: 2 for torch and OpenCV (``--threads``). On a machine shared with other busy processes,
+OpenMP's default spin-waiting makes every one of torch's ~3000 parallel regions per call wait for
+a preempted worker (seconds per call); unless ``OMP_WAIT_POLICY`` is already set, this script
+sets ``OMP_WAIT_POLICY=PASSIVE`` before torch is imported (``--omp-spin`` keeps the default).
+OpenCV's own thread pool is not affected by that variable.
+
+    python scripts/bench_nlm.py                 # headline: 2 threads, 15 rounds
+    python scripts/bench_nlm.py --threads 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--threads", type=int, default=2, help="torch and OpenCV threads (default 2)")
+    p.add_argument("--rounds", type=int, default=15, help="timed rounds (default 15)")
+    p.add_argument("--warmup", type=int, default=2, help="untimed rounds first (default 2)")
+    p.add_argument("--height", type=int, default=424)
+    p.add_argument("--width", type=int, default=512)
+    p.add_argument("--patch-size", type=int, default=7)
+    p.add_argument("--patch-distance", type=int, default=10)
+    p.add_argument("--omp-spin", action="store_true", help="keep OpenMP's default wait policy")
+    p.add_argument("--json", help="also write the results to this JSON file")
+    return p.parse_args(argv)
+
+
+def make_frame(H, W, seed=0):
+    """Piecewise-planar depth in mm (back wall + boxes) with amplitude-like noise, as uint16."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:H, :W] / max(H, W)
+    depth = 5000.0 - 1500.0 * yy + 500.0 * xx
+    for _ in range(8):
+        y0, x0 = rng.integers(0, H - 40), rng.integers(0, W - 40)
+        h, w = rng.integers(30, H // 2), rng.integers(30, W // 2)
+        sl = (slice(y0, y0 + h), slice(x0, x0 + w))
+        gy, gx = rng.uniform(-500, 500, 2)
+        depth[sl] = rng.uniform(800, 4000) + gy * yy[sl] + gx * xx[sl]
+    noisy = depth + 20.0 * rng.standard_normal(depth.shape)
+    return np.clip(np.rint(noisy), 1, 65535).astype(np.uint16)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    if not args.omp_spin:
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    import cv2
+    import numpy as np
+    import torch
+
+    from tof_fpn_torch.denoise import NonLocalMeans
+
+    torch.set_num_threads(args.threads)
+    cv2.setNumThreads(args.threads)
+    frame = make_frame(args.height, args.width)
+    x = torch.from_numpy(frame.astype(np.float32))[None, None]
+    s, d = args.patch_size, args.patch_distance
+    sigma = 20.0
+    eager = NonLocalMeans(patch_size=s, patch_distance=d)
+    scripted = torch.jit.script(eager)
+
+    def run_cv2():
+        return cv2.fastNlMeansDenoising(frame, [sigma], None, s, 2 * d + 1, cv2.NORM_L1)
+
+    runs = {
+        "opencv": run_cv2,
+        "torch_eager": lambda: eager(x, sigma=sigma),
+        "torch_script": lambda: scripted(x, sigma=sigma),
+    }
+    times = {k: [] for k in runs}
+    for i in range(args.warmup + args.rounds):
+        for name, fn in runs.items():
+            t0 = time.perf_counter()
+            fn()
+            dt = time.perf_counter() - t0
+            if i >= args.warmup:
+                times[name].append(dt)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    ratios = {
+        k: statistics.median(t / c for t, c in zip(times[k], times["opencv"], strict=True))
+        for k in ("torch_eager", "torch_script")
+    }
+    env = os.environ.get("OMP_WAIT_POLICY", "(default)")
+    print(
+        f"NLM {args.height}x{args.width} uint16/float32, patch {s}, search {2 * d + 1}, "
+        f"{args.threads} thread(s), OMP_WAIT_POLICY={env}, {args.rounds} rounds, "
+        f"load average {os.getloadavg()[0]:.2f}"
+    )
+    print(f"{'method':<14} {'median ms':>10} {'min ms':>8} {'ratio to OpenCV':>16}")
+    for name in runs:
+        r = 1.0 if name == "opencv" else ratios[name]
+        print(f"{name:<14} {med[name] * 1e3:>10.1f} {min(times[name]) * 1e3:>8.1f} {r:>16.2f}")
+    print("(ratio = median over rounds of torch time / OpenCV time in the same round; < 1: faster)")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"args": vars(args), "times_s": times, "ratio": ratios}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
