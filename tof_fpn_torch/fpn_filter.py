@@ -124,6 +124,24 @@ def _border_matrix(g: torch.Tensor, left: int, right: int) -> torch.Tensor:
     return out
 
 
+def _border_operator(
+    g: torch.Tensor, left: int, right: int, w: int, mode: str, k: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Matrices mapping the first and last ``k`` columns of a row to its ``left`` + ``right``
+    border outputs, padding folded in (``k == w``: one matrix for the whole row, second empty)."""
+    p = g.shape[0] - 1
+    idx, weight = pad_index(w, left, right, mode, g.device)
+    idx = torch.cat([idx[: left + p], idx[w - right :]])  # source column of each padded sample
+    weight = torch.cat([weight[: left + p], weight[w - right :]]).to(g.dtype)
+    rows = _border_matrix(g, left, right) * weight.unsqueeze(1)
+    if k >= w:
+        a = torch.zeros(w, left + right, dtype=g.dtype, device=g.device).index_add_(0, idx, rows)
+        return a, a[:0]
+    src = torch.where(idx < k, idx, idx - (w - 2 * k))  # columns of [first k | last k]
+    a = torch.zeros(2 * k, left + right, dtype=g.dtype, device=g.device).index_add_(0, src, rows)
+    return a[:k], a[k:]
+
+
 def _fir_blocked(
     x2: torch.Tensor, g: torch.Tensor, left: int, right: int, mode: str
 ) -> torch.Tensor:
@@ -170,18 +188,15 @@ def _fir_inplace(
         zt = xf[s0 : s0 + block].matmul(t0) + xf[s0 + block : s0 + block + p].matmul(t1)
         out[left + s0 : left + s0 + block] = zt
     out2 = out.view(r, w)
-    # Border columns: their windows cross a row end. Both padded end strips are gathered at once
-    # from a view of the first and last L - 1 columns of every row, and filtered by one small GEMM
-    # with a block-diagonal Toeplitz matrix.
-    ends = x2.as_strided([r, 2, p], [w, w - p, 1]).reshape(r, 2 * p)
-    idx, weight = pad_index(w, left, right, mode, x2.device)
-    idx = torch.cat([idx[: left + p], idx[w - right :]])  # padded columns the borders need
-    idx = torch.where(idx < p, idx, idx - (w - 2 * p))  # ... as columns of ``ends``
-    strips = ends[:, idx]
-    if mode == "zeros":
-        weight = torch.cat([weight[: left + p], weight[w - right :]])
-        strips = strips * weight.to(x2.dtype)
-    res = strips.matmul(_border_matrix(g, left, right))
+    # Border columns: their windows cross a row end. The padding is a linear map of the row's end
+    # columns, so it is folded into small matrices: borders = x[:, :p] A1 + x[:, w-p:] A2, two
+    # GEMMs on strided views (no gather, no copy) and two slice writes.
+    if w >= 2 * p:
+        a1, a2 = _border_operator(g, left, right, w, mode, p)
+        res = x2[:, :p].matmul(a1)
+        res.addmm_(x2[:, w - p :], a2)
+    else:
+        res = x2.matmul(_border_operator(g, left, right, w, mode, w)[0])
     out2[:, :left] = res[:, :left]
     out2[:, w - right :] = res[:, left:]
     return out2
