@@ -17,8 +17,10 @@ each block of output is one row of two small GEMMs with banded Toeplitz matrices
 speed). At inference the blocks are views of the *unpadded* input (rows are consecutive in memory,
 so the flattened batch is one long signal), the result is written straight into the output and
 only the ``L - 1`` border columns of each row, the ones whose window crosses a row end, are redone
-from a small padded strip. Extra memory: the output plus two strips. With autograd, or when
-exporting, a mathematically identical out-of-place version (pad, reshape, two matmuls) is used.
+by two more small GEMMs on strided views of the first and last ``L - 1`` columns, with the border
+padding folded into their matrices. Extra memory: the output plus an (R, L - 1) result. With
+autograd, or when exporting, a mathematically identical out-of-place version (pad, reshape, two
+matmuls) is used. See docs/runtime.md for the measured speed.
 """
 
 from __future__ import annotations
@@ -207,7 +209,7 @@ def _fir_last(x: torch.Tensor, taps: torch.Tensor, mode: str, fast: bool) -> tor
     length = taps.shape[0]
     shape = x.shape
     w = shape[-1]
-    g = taps.flip(0).to(x.dtype)
+    g = taps.flip(0).to(device=x.device, dtype=x.dtype)
     if length == 1:
         return x * g[0]
     right = length // 2
@@ -378,7 +380,7 @@ class FPNFilter(nn.Module):
     def _fill_invalid(self, x: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         v = valid.to(x.dtype)
         x0 = torch.where(valid, x, torch.zeros_like(x))
-        win = self.fill_window.to(x.dtype)
+        win = self.fill_window.to(device=x.device, dtype=x.dtype)
         d = self.dims[-1]
         num = fpn_filter(x0, win, [d], "zeros", not self.export_mode)
         den = fpn_filter(v, win, [d], "zeros", not self.export_mode)
