@@ -5,11 +5,13 @@ search 21 x 21: ``patch_distance = 10``); OpenCV needs ``normType=cv2.NORM_L1`` 
 Calls alternate (OpenCV, torch eager, torch TorchScript, OpenCV, ...) so that machine load hits
 all of them alike; the headline is the median over repeats of the per-round time ratio.
 
-Threads: 2 for torch and OpenCV (``--threads``). On a machine shared with other busy processes,
-OpenMP's default spin-waiting makes every one of torch's ~3000 parallel regions per call wait for
-a preempted worker (seconds per call); unless ``OMP_WAIT_POLICY`` is already set, this script
-sets ``OMP_WAIT_POLICY=PASSIVE`` before torch is imported (``--omp-spin`` keeps the default).
-OpenCV's own thread pool is not affected by that variable.
+Threads: 2 for torch and OpenCV (``--threads``). OpenMP's default wait policy (workers spin
+between parallel regions) is right on an idle machine. When other busy processes share the cores,
+torch's ~3000 parallel regions per call each wait for a preempted worker and a call takes seconds;
+``--omp-passive`` sets ``OMP_WAIT_POLICY=PASSIVE`` before torch is imported, which avoids that
+but adds a wake-up per region (about 2x slower than spinning on an idle machine). OpenCV's own
+thread pool is not affected by the variable. An ``OMP_WAIT_POLICY`` already in the environment
+is left alone.
 
     python scripts/bench_nlm.py                 # headline: 2 threads, 15 rounds
     python scripts/bench_nlm.py --threads 1
@@ -35,7 +37,9 @@ def parse_args(argv=None):
     p.add_argument("--width", type=int, default=512)
     p.add_argument("--patch-size", type=int, default=7)
     p.add_argument("--patch-distance", type=int, default=10)
-    p.add_argument("--omp-spin", action="store_true", help="keep OpenMP's default wait policy")
+    p.add_argument(
+        "--omp-passive", action="store_true", help="set OMP_WAIT_POLICY=PASSIVE (loaded machines)"
+    )
     p.add_argument("--json", help="also write the results to this JSON file")
     p.add_argument(
         "--quality", action="store_true", help="PSNR table against skimage instead of timing"
@@ -113,7 +117,7 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     if args.quality:
         return quality(args)
-    if not args.omp_spin:
+    if args.omp_passive:
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     import cv2
     import numpy as np
