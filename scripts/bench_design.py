@@ -45,16 +45,24 @@ def main() -> None:
         ref = median_ms(lambda o=order, e=edges: scipy.signal.remez(o + 1, e, [1, 0], fs=1.0))
         worst = max(worst, ours)
         print(f"{order:5d}  {rho:.3f}  {ours:10.2f}  {ref:15.2f}  {ours / ref:6.1f}")
-    print(f"worst median single design: {worst:.2f} ms (target <= 10 ms)")
+    print(f"worst median single design above: {worst:.2f} ms (target <= 10 ms)")
 
     rhos = np.linspace(1 / 300, 1 / 6, 50)
     orders = (5, 9, 17, 21, 31, 41, 53, 8, 12, 20, 28, 40, 52)
     t = time.perf_counter()
+    singles = []
     for n in orders:
         for rho in rhos:
+            t1 = time.perf_counter()
             design_fpn(n, float(rho))
+            singles.append(time.perf_counter() - t1)
     total = time.perf_counter() - t
+    singles_ms = 1e3 * np.array(singles)
     print(f"Fig. 5 family ({len(orders)} orders x {rhos.size} rho): {total:.2f} s (target < 5 s)")
+    print(
+        f"single design over that family: median {np.median(singles_ms):.2f} ms, "
+        f"95th percentile {np.percentile(singles_ms, 95):.2f} ms, max {singles_ms.max():.2f} ms"
+    )
     assert math.isfinite(total)
 
 

@@ -34,7 +34,17 @@ FreqFunction = Callable[[np.ndarray], np.ndarray]
 
 
 class RemezConvergenceError(RuntimeError):
-    """Raised when the exchange does not level the error within ``maxiter`` iterations."""
+    """Raised when the exchange does not level the error within ``maxiter`` iterations.
+
+    Attributes:
+        taps: the last iterate's filter (from :func:`remez_linear_phase`), or None. Not optimal;
+            a caller may still verify it independently (see :func:`tof_fpn_torch.design.design_fpn`).
+    """
+
+    def __init__(self, message: str, taps: np.ndarray | None = None) -> None:
+        super().__init__(message)
+        self.taps = taps
+        self.coefficients: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -188,6 +198,7 @@ def remez_cosine(
     alt = (-1.0) ** np.arange(n_ref)
     delta = 0.0
     max_err = np.inf
+    error: RemezConvergenceError | None = None
     for it in range(1, maxiter + 1):
         x = x_grid[ref]
         b = _barycentric_weights(x)
@@ -210,18 +221,23 @@ def remez_cosine(
             # No further exchange possible on this grid: the reference is optimal for the grid.
             if new_ref is not None and max_err - abs(delta) <= 1e-6 * max_err:
                 break
-            raise RemezConvergenceError(
+            error = RemezConvergenceError(
                 f"Remez exchange stalled at iteration {it}: levelled error {abs(delta):.3e} but "
                 f"max error {max_err:.3e} on the grid. Try a denser grid (grid_density), a lower "
                 "order or wider transition bands."
             )
+            break
         ref = new_ref
     else:
-        raise RemezConvergenceError(
+        error = RemezConvergenceError(
             f"Remez exchange did not converge in {maxiter} iterations (levelled error "
             f"{abs(delta):.3e}, max error {max_err:.3e}). Try a lower order, wider transition "
             "bands (larger rho) or a larger maxiter."
         )
+    coeffs = _cosine_coefficients(lambda w: _barycentric_eval(np.cos(w), xi, ci, bi), degree)
+    if error is not None:
+        error.coefficients = coeffs
+        raise error
     coeffs = _cosine_coefficients(lambda w: _barycentric_eval(np.cos(w), xi, ci, bi), degree)
     return RemezResult(coeffs, abs(delta), max_err, it, omega[ref])
 
@@ -238,7 +254,11 @@ def _initial_reference(omega: np.ndarray, band: np.ndarray, n_ref: int) -> np.nd
     if spare < 0:
         return np.round(np.linspace(0, omega.size - 1, n_ref)).astype(np.int64)
     room = counts - alloc
-    share = widths / widths.sum() if widths.sum() > 0 else np.ones(labels.size) / labels.size
+    share = (
+        np.sqrt(widths) / np.sqrt(widths).sum()
+        if widths.sum() > 0
+        else np.ones(labels.size) / labels.size
+    )
     while spare > 0:
         want = share * (alloc.sum() + spare) - alloc
         want[room <= 0] = -np.inf
@@ -251,7 +271,14 @@ def _initial_reference(omega: np.ndarray, band: np.ndarray, n_ref: int) -> np.nd
         for f, c, a in zip(first, counts, alloc, strict=True)
         if a > 0
     ]
-    return np.concatenate(idx)
+    return np.unique(np.concatenate(idx))
+
+
+def _cheb_fractions(a: int) -> np.ndarray:
+    """``a`` points in [0, 1], denser towards both ends (Chebyshev extreme points)."""
+    if a == 1:
+        return np.array([0.5])
+    return (1 - np.cos(np.pi * np.arange(a) / (a - 1))) / 2
 
 
 def _barycentric_eval(x: np.ndarray, xi: np.ndarray, ci: np.ndarray, bi: np.ndarray) -> np.ndarray:
@@ -332,7 +359,17 @@ def remez_linear_phase(
 
     # Stage 1: exchange on a uniform grid of each band.
     omega, label = make_grid(bands_arr, grid_density * (degree + 1))
-    res = remez_cosine(degree, omega, *specs(omega), label, maxiter=maxiter, tol=tol)
+
+    def to_taps(coefficients: np.ndarray) -> np.ndarray:
+        taps = cosine_to_taps(coefficients)
+        return np.convolve(taps, [0.5, 0.5]) if type2 else taps
+
+    try:
+        res = remez_cosine(degree, omega, *specs(omega), label, maxiter=maxiter, tol=tol)
+    except RemezConvergenceError as exc:
+        if exc.coefficients is not None:
+            exc.taps = to_taps(exc.coefficients)
+        raise
     # Stages 2 and 3: a 4x denser grid plus a fine local grid (33 points across two of its
     # steps) around every extremal frequency, exchanging again from the converged reference. The
     # dense grid catches lobes the coarse one missed (they crowd near band edges, where W varies
@@ -355,10 +392,7 @@ def remez_linear_phase(
             maxiter=maxiter,
             tol=tol,
         )
-    taps = cosine_to_taps(res.coefficients)
-    if type2:
-        taps = np.convolve(taps, [0.5, 0.5])
-    return taps, res
+    return to_taps(res.coefficients), res
 
 
 def cosine_to_taps(a: np.ndarray) -> np.ndarray:
