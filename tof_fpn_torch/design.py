@@ -339,7 +339,7 @@ def design_fpn(
     def attempt(drop: int):
         """Design G of order ``n_g - 2 drop``, zero-padded back to ``n_g``.
 
-        Returns ``(found, final)``: ``found`` is ``(taps, result, band_ripples)`` when the design
+        Returns ``(found, final)``: ``found`` is ``(taps, result, band_ripples, drop)`` when it
         verifies on the dense grid (and, for ``drop > 0``, lies under the floor); ``final`` says
         that a verified lower-order design already misses the floor, so lower ones will too.
         """
@@ -363,7 +363,7 @@ def design_fpn(
         band_ripples = passband_ripple(taps, bands) / bw  # weighted, as the exchange saw them
         ripple = band_ripples.max()
         if ripple <= max(1.005 * levelled, RIPPLE_FLOOR) and (drop == 0 or ripple <= RIPPLE_FLOOR):
-            return (taps, res, band_ripples), False
+            return (taps, res, band_ripples, drop), False
         if res is not None:
             errors.append(
                 RemezConvergenceError(
@@ -376,14 +376,11 @@ def design_fpn(
         return None, drop > 0 and res is not None and ripple <= 1.005 * levelled
 
     found, final = attempt(0)
-    drop = 0
-    while found is None and not final and drop < n_g // 2:
-        # Lost in rounding (see RIPPLE_FLOOR): the highest order of G that verifies under the floor.
-        drop += 1
-        found, final = attempt(drop)
+    if found is None:
+        found = _highest_verified_order(attempt, n_g // 2)
     if found is None:
         raise errors[0]
-    taps, res, band_ripples = found
+    taps, res, band_ripples, drop = found
     band_ripples = band_ripples * bw
     taps = 0.5 * (taps + taps[::-1])  # exactly symmetric (the convolutions round unevenly)
     notch_gains = np.abs(np.exp(-1j * np.outer(w, np.arange(taps.size))) @ taps)
@@ -400,6 +397,30 @@ def design_fpn(
         g_order=n_g - 2 * drop,
         band_weights=tuple(float(v) for v in bw),
     )
+
+
+def _highest_verified_order(attempt, max_drop: int):
+    """Smallest ``drop`` in ``1..max_drop`` whose design verifies under the floor, or None.
+
+    In practice the outcomes are ordered: high orders of G are lost in rounding (no design), then a
+    window verifies under the floor, then lower orders verify above it (``final``). Bisection finds
+    the first order that is not lost; should the outcomes not be ordered, a linear scan follows.
+    """
+    lo, hi, best = 0, max_drop + 1, None
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        found, final = attempt(mid)
+        if found is None and not final:
+            lo = mid
+        else:
+            hi, best = mid, found
+    if best is not None:
+        return best
+    for drop in range(1, max_drop + 1):
+        found, final = attempt(drop)
+        if found is not None or final:
+            return found
+    return None
 
 
 def design_fpn_filter(
