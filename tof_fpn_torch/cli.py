@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 #: Sub-command modules under ``tof_fpn_torch.commands``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("design", "export")
+COMMANDS: tuple[str, ...] = ("design", "export", "reproduce", "demo")
 
 
 def build_parser() -> argparse.ArgumentParser:
