@@ -22,12 +22,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", type=int, default=204, help="scene side in pixels (>= 32)")
     p.add_argument("--order", type=int, default=28, help="filter order (default 28)")
     p.add_argument("--rho", type=float, default=0.13, help="transition width parameter (0.13)")
+    p.add_argument("--dpi", type=int, default=60, help="resolution of demo.png (default 60)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     set_threads(args.threads)
-    res = run_demo(args.out, seed=args.seed, size=args.size, order=args.order, rho=args.rho)
+    res = run_demo(
+        args.out, seed=args.seed, size=args.size, order=args.order, rho=args.rho, dpi=args.dpi
+    )
     print(res.summary())
     return 0
