@@ -12,7 +12,7 @@ import torch
 
 from tof_fpn_torch import FPNFilter, design_fpn
 from tof_fpn_torch.design import zero_phase_response
-from tof_fpn_torch.fpn_filter import fpn_filter, half_sample_taps
+from tof_fpn_torch.fpn_filter import _fir_polyphase, fpn_filter, half_sample_taps
 
 SCIPY_MODE = {"reflect": "mirror", "replicate": "nearest", "circular": "wrap", "zeros": "constant"}
 
@@ -51,6 +51,51 @@ def test_matches_scipy_convolve1d(border, order, width, design20, design41):
     ref_h = ndi.convolve1d(x.numpy(), taps, axis=-2, mode=SCIPY_MODE[border])
     y = fpn_filter(x, torch.from_numpy(taps), [-2], border, True)
     np.testing.assert_allclose(y.numpy(), ref_h, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("border", list(SCIPY_MODE))
+@pytest.mark.parametrize("order", [1, 2, 20, 41])
+@pytest.mark.parametrize("shape", [(1, 1, 1, 42), (2, 3, 5, 43), (1, 2, 7, 63), (3, 1, 17, 200)])
+def test_polyphase_path_matches_scipy(border, order, shape, design20, design41):
+    """float32 inference path (polyphase conv + seam GEMM) against SciPy in float64: every
+    border mode, widths down to L, batch sizes with ``R W`` not a multiple of the phase count
+    (tail), one row only, and the degenerate 2- and 3-tap filters."""
+    taps = {1: np.array([0.6, 0.4]), 2: np.array([0.3, 0.5, 0.2])}.get(order)
+    if taps is None:
+        taps = (design20 if order == 20 else design41).taps
+    if shape[-1] < taps.size:
+        pytest.skip("narrower than the filter: blocked path")
+    g = torch.Generator().manual_seed(shape[-1])
+    x = 1.0 + torch.rand(shape, generator=g)
+    ref = ndi.convolve1d(x.double().numpy(), taps, axis=-1, mode=SCIPY_MODE[border])
+    t = torch.from_numpy(taps)
+    with torch.inference_mode():
+        y = fpn_filter(x, t, [-1], border, True)
+        right = taps.size // 2
+        direct = _fir_polyphase(
+            x.reshape(-1, shape[-1]), t.flip(0).float(), taps.size - 1 - right, right, border
+        )
+    assert y.dtype == torch.float32
+    np.testing.assert_allclose(y.double().numpy(), ref, rtol=0, atol=2e-6)
+    np.testing.assert_array_equal(direct.reshape(shape).numpy(), y.numpy())
+    ref_h = ndi.convolve1d(x.double().numpy(), taps, axis=-2, mode=SCIPY_MODE[border])
+    if shape[-2] >= taps.size:
+        with torch.inference_mode():
+            y = fpn_filter(x, t, [-2], border, True)
+        np.testing.assert_allclose(y.double().numpy(), ref_h, rtol=0, atol=2e-6)
+
+
+def test_two_tap_reflect_fast_paths():
+    """Regression: with L = 2 the reflected right neighbour of the last column is column W - 2,
+    outside the last L - 1 columns; both inference paths (float32 polyphase, float64 GEMM)."""
+    taps = torch.tensor([0.6, 0.4], dtype=torch.float64)
+    x = 1.0 + torch.rand(2, 1, 3, 50, dtype=torch.float64)
+    ref = ndi.convolve1d(x.numpy(), taps.numpy(), axis=-1, mode="mirror")
+    with torch.inference_mode():
+        y64 = fpn_filter(x, taps, [-1], "reflect", True)
+        y32 = fpn_filter(x.float(), taps, [-1], "reflect", True)
+    np.testing.assert_allclose(y64.numpy(), ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(y32.double().numpy(), ref, rtol=0, atol=1e-6)
 
 
 def test_float32_matches_float64_numpy_reference(design41):

@@ -11,16 +11,20 @@ the input; for even ``L`` (odd order, type II) it sits half a sample later (``de
 ``compensate_delay=True`` folds a half-sample interpolator into the taps (see :func:`half_sample_taps`).
 
 Speed: a direct convolution costs ``L`` multiply-adds per sample and ``F.conv1d`` does not reach
-BLAS speed for one long 1-D kernel. Here the signal is cut into blocks of ``M >= L - 1`` samples and
-each block of output is one row of two small GEMMs with banded Toeplitz matrices,
-``Z_j = X_j T_0 + X_{j+1}[:, :L-1] T_1`` (``(M + L - 1)`` multiply-adds per sample, but at GEMM
-speed). At inference the blocks are views of the *unpadded* input (rows are consecutive in memory,
-so the flattened batch is one long signal), the result is written straight into the output and
-only the ``L - 1`` border columns of each row, the ones whose window crosses a row end, are redone
-by two more small GEMMs on strided views of the first and last ``L - 1`` columns, with the border
-padding folded into their matrices. Extra memory: the output plus an (R, L - 1) result. With
-autograd, or when exporting, a mathematically identical out-of-place version (pad, reshape, two
-matmuls) is used. See docs/runtime.md for the measured speed.
+BLAS speed for one long single-channel kernel. The rows are consecutive in memory, so the flattened
+batch is one long signal. For float32 on CPU (inference) that signal, viewed as (n / P, P), is a
+channels-last image whose ``P = 16`` channels are its polyphase components; the FIR is then one
+16-in, 16-out convolution with ``K = ceil((L - 1) / P) + 1`` taps (``P K = 64`` multiply-adds per
+sample for ``L = 42``) that oneDNN runs at GEMM speed, read straight from the input and written
+straight into the output (no copies). For other dtypes/devices the signal is cut into blocks of
+``M >= L - 1`` samples and each block of output is one row of two small GEMMs with banded
+Toeplitz matrices, ``Z_j = X_j T_0 + X_{j+1}[:, :L-1] T_1`` (``M + L - 1`` multiply-adds per
+sample). Either way only the ``L - 1`` border columns of each row, the ones whose window crosses a
+row end, are then redone: the padding is folded into small matrices and (except for circular)
+all row seams are one more GEMM from a strided view of the input into a strided view of the
+output. Extra memory: the
+output. With autograd, or when exporting, a mathematically identical out-of-place version (pad,
+reshape, two matmuls) is used. See docs/runtime.md for the measured speed.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from ._checks import check_image, check_taps, normalize_dims
 from .design import DEFAULT_NOTCHES, design_fpn
@@ -190,9 +195,42 @@ def _fir_inplace(
         zt = xf[s0 : s0 + block].matmul(t0) + xf[s0 + block : s0 + block + p].matmul(t1)
         out[left + s0 : left + s0 + block] = zt
     out2 = out.view(r, w)
-    # Border columns: their windows cross a row end. The padding is a linear map of the row's end
-    # columns, so it is folded into small matrices: borders = x[:, :p] A1 + x[:, w-p:] A2, two
-    # GEMMs on strided views (no gather, no copy) and two slice writes.
+    _redo_borders(x2, out2, g, left, right, mode)
+    return out2
+
+
+def _redo_borders(
+    x2: torch.Tensor, out2: torch.Tensor, g: torch.Tensor, left: int, right: int, mode: str
+) -> None:
+    """Overwrite the ``left`` + ``right`` border columns of contiguous ``out2`` (R, W) from
+    contiguous ``x2``: their windows cross a row end.
+
+    The padding is a linear map of the row's end columns, so it is folded into small matrices.
+    Except for ``circular``, the left outputs depend on the first ``k`` columns only and the right
+    outputs on the last ``k`` (``k = L - 1``; ``L`` for ``L = 2``, whose reflected right neighbour
+    lies one column further in). The end of row ``i`` and the start of row ``i + 1`` are one
+    contiguous run of ``2 k`` samples, and their outputs (right border of ``i``, left border of
+    ``i + 1``) one contiguous run of ``L - 1``: all seams are one GEMM from a strided view of the
+    input straight into a strided view of the output (no gather, no copy, one parallel region),
+    plus the two outer ends.
+    """
+    p = g.shape[0] - 1
+    r, w = x2.shape[0], x2.shape[1]
+    if mode != "circular":
+        k = max(p, right + 1)  # L = 2: the reflected right neighbour lies one column further in
+        # the operator does not depend on w here (w >= L): build it for a row >= 2 k wide
+        a1, a2 = _border_operator(g, left, right, max(w, 2 * k), mode, k)
+        a_left, a_right = a1[:, :left], a2[:, left:]
+        if r > 1:
+            seam = torch.zeros(2 * k, p, dtype=g.dtype, device=g.device)
+            seam[:k, :right] = a_right
+            seam[k:, right:] = a_left
+            xs = x2.reshape(-1)[w - k : (r - 1) * w + k].unfold(0, 2 * k, w)
+            ys = out2.reshape(-1)[w - right : (r - 1) * w + left].unfold(0, p, w)
+            torch.mm(xs, seam, out=ys)
+        out2[0, :left] = x2[0, :k].matmul(a_left)
+        out2[r - 1, w - right :] = x2[r - 1, w - k :].matmul(a_right)
+        return
     if w >= 2 * p:
         a1, a2 = _border_operator(g, left, right, w, mode, p)
         res = x2[:, :p].matmul(a1)
@@ -201,6 +239,60 @@ def _fir_inplace(
         res = x2.matmul(_border_operator(g, left, right, w, mode, w)[0])
     out2[:, :left] = res[:, :left]
     out2[:, w - right :] = res[:, left:]
+
+
+def _phases(length: int) -> int:
+    """Number of polyphase channels of :func:`_fir_polyphase` for ``length`` taps."""
+    return 16
+
+
+def _polyphase_weight(g: torch.Tensor, phases: int) -> torch.Tensor:
+    """``W[q, p, 0, j] = g[j P + p - q]`` (0 outside), channels-last (P, P, 1, K) conv weight."""
+    length = g.shape[0]
+    k_len = (phases - 1 + length - 1) // phases + 1
+    q = torch.arange(phases, device=g.device).view(phases, 1, 1)
+    p = torch.arange(phases, device=g.device).view(1, phases, 1)
+    j = torch.arange(k_len, device=g.device).view(1, 1, k_len)
+    k = j * phases + p - q
+    inside = (k >= 0) & (k < length)
+    gz = torch.cat([g, torch.zeros(1, dtype=g.dtype, device=g.device)])
+    wt = gz[torch.where(inside, k, torch.full_like(k, length))]
+    return wt.unsqueeze(2).contiguous(memory_format=torch.channels_last)
+
+
+def _fir_polyphase(
+    x2: torch.Tensor, g: torch.Tensor, left: int, right: int, mode: str
+) -> torch.Tensor:
+    """Polyphase FIR along the last axis of a contiguous (R, W) as one multi-channel convolution.
+
+    The rows are consecutive in memory, so the flattened batch is one long signal ``x``; viewed as
+    (n / P, P) it *is* a channels-last (1, P, 1, n / P) image whose channel ``p`` holds the phase
+    ``x[m P + p]``, no copy. Output phase ``q`` is ``sum_{p, j} g[j P + p - q] x[(m + j) P + p]``,
+    a ``P``-in, ``P``-out convolution with ``K = ceil((L - 1) / P) + 1`` taps (``P K`` multiply-adds
+    per sample), which oneDNN runs at GEMM speed; its channels-last output is again the flat
+    signal. Zero conv padding of ``K`` phases on both sides lets the result be a view of the
+    conv output shifted by ``left``. Only row-border columns (windows crossing a row end) and the
+    last ``n mod P`` samples are then redone. Needs ``W >= L`` and ``R W >= 2 P``; no autograd.
+    """
+    length = g.shape[0]
+    phases = _phases(length)
+    k_len = (phases - 1 + length - 1) // phases + 1
+    r, w = x2.shape[0], x2.shape[1]
+    n = r * w
+    m = n // phases
+    xf = x2.reshape(-1)
+    xi = xf[: m * phases].view(1, 1, m, phases).permute(0, 3, 1, 2)
+    xi = xi.contiguous(memory_format=torch.channels_last)  # already is: no copy
+    y = F.conv2d(xi, _polyphase_weight(g, phases), padding=(0, k_len))
+    # y[.., t] (flat) = sum_k g[k] x[t - K P + k], i.e. output sample s sits at t = s + K P - left
+    flat = y.permute(0, 2, 3, 1).reshape(-1)  # channels-last output: a view
+    start = k_len * phases - left
+    out = flat[start : start + n]
+    s0 = max(m * phases - right, left)  # from here on windows reach the n mod P samples left out
+    if s0 < n - right:
+        out[s0 : n - right] = xf[s0 - left :].unfold(0, length, 1).matmul(g)
+    out2 = out.view(r, w)
+    _redo_borders(x2, out2, g, left, right, mode)
     return out2
 
 
@@ -215,7 +307,16 @@ def _fir_last(x: torch.Tensor, taps: torch.Tensor, mode: str, fast: bool) -> tor
     right = length // 2
     left = length - 1 - right
     x2 = x.reshape(-1, w)
-    if fast and w >= length and x2.shape[0] * w >= length - 1 + _block_size(length):
+    n = x2.shape[0] * w
+    if (
+        fast
+        and w >= length
+        and x.dtype == torch.float32
+        and x.device.type == "cpu"
+        and n >= 2 * _phases(length)
+    ):
+        y = _fir_polyphase(x2.contiguous(), g, left, right, mode)
+    elif fast and w >= length and n >= length - 1 + _block_size(length):
         y = _fir_inplace(x2.contiguous(), g, left, right, mode)
     else:
         y = _fir_blocked(x2, g, left, right, mode)
