@@ -217,14 +217,13 @@ def _redo_borders(
     p = g.shape[0] - 1
     r, w = x2.shape[0], x2.shape[1]
     if mode != "circular":
-        k = max(p, right + 1)  # L = 2: the reflected right neighbour lies one column further in
-        # the operator does not depend on w here (w >= L): build it for a row >= 2 k wide
-        a1, a2 = _border_operator(g, left, right, max(w, 2 * k), mode, k)
-        a_left, a_right = a1[:, :left], a2[:, left:]
+        if torch.jit.is_scripting():
+            ops = _seam_operators(g, left, right, mode)
+        else:
+            ops = _cached_operators("seam", g, left, right, mode)
+        seam, a_left, a_right = ops[0], ops[1], ops[2]
+        k = a_left.shape[0]
         if r > 1:
-            seam = torch.zeros(2 * k, p, dtype=g.dtype, device=g.device)
-            seam[:k, :right] = a_right
-            seam[k:, right:] = a_left
             xs = x2.reshape(-1)[w - k : (r - 1) * w + k].unfold(0, 2 * k, w)
             ys = out2.reshape(-1)[w - right : (r - 1) * w + left].unfold(0, p, w)
             torch.mm(xs, seam, out=ys)
@@ -239,6 +238,46 @@ def _redo_borders(
         res = x2.matmul(_border_operator(g, left, right, w, mode, w)[0])
     out2[:, :left] = res[:, :left]
     out2[:, w - right :] = res[:, left:]
+
+
+def _seam_operators(g: torch.Tensor, left: int, right: int, mode: str) -> list[torch.Tensor]:
+    """``[seam, A_left, A_right]`` of :func:`_redo_borders` (not ``circular``): ``A_left`` maps the
+    first ``k`` columns of a row to its left border outputs, ``A_right`` the last ``k`` to the
+    right ones, ``seam = [[A_right, 0], [0, A_left]]`` the end of one row and the start of the
+    next to their ``L - 1`` outputs. ``k = L - 1``, or ``L`` for ``L = 2`` (whose reflected right
+    neighbour lies one column further in). Independent of the row width ``W >= L``."""
+    p = g.shape[0] - 1
+    k = max(p, right + 1)
+    a1, a2 = _border_operator(g, left, right, 2 * k, mode, k)
+    a_left, a_right = a1[:, :left], a2[:, left:]
+    seam = torch.zeros(2 * k, p, dtype=g.dtype, device=g.device)
+    seam[:k, :right] = a_right
+    seam[k:, right:] = a_left
+    return [seam, a_left, a_right]
+
+
+_OPERATORS: dict[tuple, list[torch.Tensor]] = {}
+
+
+@torch.jit.unused
+def _cached_operators(
+    kind: str, g: torch.Tensor, left: int, right: int, mode: str
+) -> list[torch.Tensor]:
+    """Eager-mode cache of the small matrices (building them is ~50 tiny ops, ~0.3 ms per call).
+    Keyed by the taps' values, so in-place changes to the taps are seen."""
+    key = (kind, tuple(g.tolist()), g.dtype, g.device, left, right, mode, _phases(g.shape[0]))
+    ops = _OPERATORS.get(key)
+    if ops is None:
+        with torch.inference_mode(False):
+            g = g.clone()
+            if kind == "seam":
+                ops = _seam_operators(g, left, right, mode)
+            else:
+                ops = [_polyphase_weight(g, _phases(g.shape[0]))]
+        if len(_OPERATORS) >= 64:
+            _OPERATORS.clear()
+        _OPERATORS[key] = ops
+    return ops
 
 
 def _phases(length: int) -> int:
@@ -283,7 +322,11 @@ def _fir_polyphase(
     xf = x2.reshape(-1)
     xi = xf[: m * phases].view(1, 1, m, phases).permute(0, 3, 1, 2)
     xi = xi.contiguous(memory_format=torch.channels_last)  # already is: no copy
-    y = F.conv2d(xi, _polyphase_weight(g, phases), padding=(0, k_len))
+    if torch.jit.is_scripting():
+        weight = _polyphase_weight(g, phases)
+    else:
+        weight = _cached_operators("polyphase", g, left, right, mode)[0]
+    y = F.conv2d(xi, weight, padding=(0, k_len))
     # y[.., t] (flat) = sum_k g[k] x[t - K P + k], i.e. output sample s sits at t = s + K P - left
     flat = y.permute(0, 2, 3, 1).reshape(-1)  # channels-last output: a view
     start = k_len * phases - left
