@@ -258,6 +258,22 @@ def test_invalid_pixels_do_not_smear_and_stay_invalid(design20):
     torch.testing.assert_close(y[far], ref[far], rtol=0, atol=1e-6)
 
 
+@pytest.mark.parametrize(
+    "value", [math.nan, -math.nan, math.inf, -math.inf, 0.0, -0.0, -1.0, 1e-42, 3e38]
+)
+def test_fast_validity_check_special_values(value, design20):
+    """The float32 fast check tests bit patterns (0 < bits < +inf's): NaN of either sign, +-inf,
+    +-0, negatives, denormals and huge values must take the same decision as the full path."""
+    f = FPNFilter(design20.taps)
+    x = 1.0 + torch.rand(1, 1, 8, 64, generator=torch.Generator().manual_seed(0))
+    x[0, 0, 3, 10] = value
+    y = f(x)
+    f.export_mode = True  # always the full invalid-pixel path
+    ref = f(x)
+    torch.testing.assert_close(y, ref, rtol=0, atol=2e-6, equal_nan=True)
+    assert torch.equal(y.isnan(), x.isnan())
+
+
 def test_zero_is_invalid_can_be_disabled(design20):
     x = torch.randn(1, 1, 4, 50, dtype=torch.float64)
     x[0, 0, 1, 10] = 0.0
