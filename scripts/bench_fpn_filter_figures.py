@@ -20,7 +20,7 @@ import numpy as np
 import scipy.ndimage as ndi
 import torch
 
-from tof_fpn_torch import FPNFilter, FPNSuppression
+from tof_fpn_torch.build import filter_from_design, suppression_from_design
 
 
 def scene(b: int, h: int, w: int) -> torch.Tensor:
@@ -45,7 +45,7 @@ def main() -> None:
     base = scene(2, h, w)
     print("stripe energy after filtering, relative to before, interior columns:")
     for order, rho in ((20, 0.14), (41, 0.12)):
-        f = FPNFilter.from_design(order, rho)
+        f = filter_from_design(order, rho)
         m = f.taps.numel()
         for dtype in (torch.float64, torch.float32):
             with torch.inference_mode():
@@ -54,7 +54,7 @@ def main() -> None:
             print(f"  order {order:2d} rho {rho}: {str(dtype):14s} {db:8.1f} dB")
     print("passband ripple: probe sinusoids (25 per band) through FPNFilter vs design:")
     for order, rho in ((20, 0.14), (28, 0.13), (41, 0.12)):
-        f = FPNFilter.from_design(order, rho)
+        f = filter_from_design(order, rho)
         m = f.taps.numel()
         worst = 0.0
         for lo, hi in f.design.bands:
@@ -69,7 +69,7 @@ def main() -> None:
             f"  order {order} rho {rho}: measured {20 * math.log10(worst):6.2f} dB, "
             f"designed {f.design.ripple_db:6.2f} dB"
         )
-    f = FPNFilter.from_design(41, 0.12)
+    f = filter_from_design(41, 0.12)
     x64 = scene(4, 60, 256)
     ref = ndi.convolve1d(x64.numpy(), f.design.taps, axis=-1, mode="mirror")
     print("max |FPNFilter(x) - float64 SciPy reference| (depth ~1.5-3.5 m):")
@@ -82,7 +82,7 @@ def main() -> None:
 
         from tof_fpn_torch.export import export_onnx, export_torchscript
 
-        mod = FPNSuppression(order=41, rho=0.12)
+        mod = suppression_from_design(41, 0.12)
         d = 1.0 + torch.rand(2, 1, 64, 80)
         a = 400.0 * torch.rand(2, 1, 64, 80)
         d[0, 0, 3, 4] = float("nan")

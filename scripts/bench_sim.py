@@ -69,7 +69,7 @@ def median_time(fn, repeats: int) -> float:
 
 def laws() -> None:
     """Print the measured noise law, FPN growth and eq. (10) calibration figures of the docs."""
-    from tof_fpn_torch.metrics import psnr
+    from tof_fpn_torch.analysis.metrics import psnr
     from tof_fpn_torch.sim import (
         DepthFPN,
         depth_noise_vs_amplitude,

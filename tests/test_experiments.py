@@ -8,8 +8,10 @@ import json
 import pytest
 import torch
 
+from tof_fpn_torch import constants as K
 from tof_fpn_torch import experiments as E
 from tof_fpn_torch.cli import main
+from tof_fpn_torch.experiments.table1 import table1_markdown
 
 
 @pytest.fixture(autouse=True)
@@ -31,7 +33,7 @@ def test_quick_table1_writes_files(quick_table1, tmp_path):
     for key in ("csv", "json", "md", "png"):
         assert paths[key].exists() and paths[key].stat().st_size > 100, key
     rows = list(csv.DictReader(open(paths["csv"])))
-    assert len(rows) == 2 * len(E.TABLE1_FILTERS)
+    assert len(rows) == 2 * len(K.TABLE1_FILTERS)
     assert {r["case"] for r in rows} == set(E.CASES)
     data = json.loads(paths["json"].read_text())
     assert data["nlm"] == {"patch_size": 5, "patch_distance": 10, "h": 1.2, "kernel": "box"}
@@ -56,7 +58,7 @@ def test_quick_table1_filtering_beats_unfiltered_nlm(quick_table1):
 
 
 def test_table1_markdown_has_paper_numbers(quick_table1):
-    md = E.table1_markdown(quick_table1)
+    md = table1_markdown(quick_table1)
     for v in (
         "24.51",
         "21.26",
@@ -77,10 +79,10 @@ def test_table1_markdown_has_paper_numbers(quick_table1):
 
 
 def test_paper_table_is_transcribed():
-    assert E.PAPER_TABLE1["fpn+noise"][(40, 0.09)] == (24.79, 29.28, 30.24)
-    assert E.PAPER_TABLE1["fpn"][(17, 0.14)] == (25.28, 28.35, 30.44)
-    assert list(E.PAPER_TABLE1["fpn"]) == list(E.TABLE1_FILTERS)
-    assert E.PAPER_INPUT_PSNR == {"fpn": 24.51, "fpn+noise": 21.26}
+    assert K.PAPER_TABLE1["fpn+noise"][(40, 0.09)] == (24.79, 29.28, 30.24)
+    assert K.PAPER_TABLE1["fpn"][(17, 0.14)] == (25.28, 28.35, 30.44)
+    assert list(K.PAPER_TABLE1["fpn"]) == list(K.TABLE1_FILTERS)
+    assert K.PAPER_INPUT_PSNR == {"fpn": 24.51, "fpn+noise": 21.26}
 
 
 def test_synthetic_data_is_seeded():
@@ -159,7 +161,7 @@ def test_dc_normalize_and_delay_compensation_close_the_gap(quick_table1):
         dc_normalize=True,
     )
     assert r["compensate_delay"] and r["dc_normalize"]
-    assert "Variant" in E.table1_markdown(r)
+    assert "Variant" in table1_markdown(r)
     plain = {(x["case"], x["order"]): x for x in quick_table1["rows"]}
     for x in r["rows"]:
         # {20, 0.14} has H(0) = 0.967 and {17, 0.14} a half-sample delay: both improve

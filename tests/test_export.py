@@ -1,17 +1,20 @@
-"""TorchScript and ONNX export: exported graphs agree with eager; export mode == fast path; CLI."""
+"""TorchScript and ONNX export: exported graphs agree with eager; the traced path == fast path; CLI."""
 
 from __future__ import annotations
+
+import importlib
 
 import numpy as np
 import pytest
 import torch
 
-from tof_fpn_torch import FPNFilter, FPNSuppression
+from tof_fpn_torch import FPNFilter
+from tof_fpn_torch.build import suppression_from_design
 from tof_fpn_torch.cli import main
-from tof_fpn_torch.export import export_onnx, export_torchscript, for_export
+from tof_fpn_torch.export import export_onnx, export_torchscript
 
-ort = pytest.importorskip("onnxruntime")
-pytest.importorskip("onnx")
+# the module, not the function of the same name that the package exports
+fpn_filter_module = importlib.import_module("tof_fpn_torch.runtime.fpn_filter")
 
 
 def _inputs(shape, seed=0, holes=True):
@@ -24,18 +27,22 @@ def _inputs(shape, seed=0, holes=True):
     return depth, amplitude
 
 
-def test_export_mode_equals_fast_path():
-    m = FPNSuppression(order=41, rho=0.12, dim=(-2, -1))
-    e = for_export(m)
-    assert e.filter.export_mode and not m.filter.export_mode
+def test_traced_path_equals_fast_path(monkeypatch):
+    """While tracing for export the stage takes its branch-free, out-of-place path (fill always
+    on, block-Toeplitz GEMM); it must give the fast path's output."""
+    m = suppression_from_design(order=41, rho=0.12, dim=(-2, -1))
     for holes in (False, True):
         d, a = _inputs((2, 1, 50, 90), holes=holes)
         with torch.inference_mode():
-            torch.testing.assert_close(e(d, a), m(d, a), rtol=0, atol=2e-6, equal_nan=True)
+            fast = m(d, a)
+            monkeypatch.setattr(fpn_filter_module, "_tracing", lambda: True)
+            traced = m(d, a)
+            monkeypatch.undo()
+        torch.testing.assert_close(traced, fast, rtol=0, atol=2e-6, equal_nan=True)
 
 
 def test_torchscript_file_roundtrip(tmp_path):
-    m = FPNSuppression()
+    m = suppression_from_design()
     path = tmp_path / "fpn.pt"
     export_torchscript(m, path)
     loaded = torch.jit.load(str(path))
@@ -70,13 +77,14 @@ def cli_onnx(tmp_path_factory):
 @pytest.mark.parametrize("shape", [(2, 1, 64, 80), (1, 1, 33, 47), (3, 1, 8, 200)])
 def test_onnx_agrees_with_eager_dynamic_shapes(cli_onnx, shape):
     import onnx
+    import onnxruntime as ort
 
     model = onnx.load(str(cli_onnx))
     assert [o.version for o in model.opset_import if o.domain in ("", "ai.onnx")] == [17]
     sess = ort.InferenceSession(str(cli_onnx))
     d, a = _inputs(shape)
     (out,) = sess.run(None, {"depth": d.numpy(), "amplitude": a.numpy()})
-    ref = FPNSuppression(order=41, rho=0.12)(d, a).numpy()
+    ref = suppression_from_design(order=41, rho=0.12)(d, a).numpy()
     np.testing.assert_array_equal(np.isnan(out), np.isnan(ref))
     np.testing.assert_allclose(out, ref, rtol=0, atol=1e-5, equal_nan=True)
 
@@ -100,7 +108,7 @@ def test_cli_torchscript(tmp_path, capsys):
     )
     assert '"format": "torchscript"' in capsys.readouterr().out
     d, a = _inputs((1, 1, 40, 30))
-    ref = FPNSuppression(dim=-2, adaptive=False)(d, a)
+    ref = suppression_from_design(dim=-2, adaptive=False)(d, a)
     torch.testing.assert_close(torch.jit.load(str(path))(d, a), ref, rtol=0, atol=0, equal_nan=True)
 
 
@@ -122,3 +130,20 @@ def test_export_onnx_rejects_non_module(tmp_path):
         export_onnx("not a module", tmp_path / "z.onnx")
     with pytest.raises(ValueError, match="torch.nn.Module"):
         export_torchscript(FPNFilter)  # the class, not an instance
+
+
+def test_design_survives_torchscript_and_onnx(tmp_path, cli_onnx):
+    import json
+
+    import onnx
+
+    m = suppression_from_design(order=28, rho=0.13)
+    path = tmp_path / "m.pt"
+    export_torchscript(m, path)
+    loaded = torch.jit.load(str(path))
+    assert (loaded.filter.order, loaded.filter.rho) == (28, 0.13)
+    assert loaded.filter.notches == list(m.filter.notches) and len(loaded.filter.notches) == 2
+    meta = {p.key: json.loads(p.value) for p in onnx.load(str(cli_onnx)).metadata_props}
+    assert meta["filter.order"] == 41 and meta["filter.rho"] == 0.12
+    assert meta["filter.notches"] == pytest.approx([2 * np.pi / 3, np.pi])
+    assert meta["filter.dims"] == [-1] and meta["filter.delay"] == 0.5

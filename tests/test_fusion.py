@@ -63,8 +63,9 @@ def test_errors():
         AmplitudeFusion(low=float("nan"))
     fuse = AmplitudeFusion()
     d = torch.ones(1, 1, 2, 2)
-    with pytest.raises(ValueError, match="amplitude must be >= 0, got minimum -3.0"):
-        fuse(d, d, torch.tensor([[[[1.0, -3.0], [0.0, 1.0]]]]))
+    # a negative or NaN amplitude is no measurement: that pixel keeps its raw depth
+    out = fuse(d + 1, d, torch.tensor([[[[1.0, -3.0], [float("nan"), 1.0]]]]))
+    assert out.tolist() == [[[[2.0, 1.0], [1.0, 2.0]]]]
     with pytest.raises(ValueError, match=r"same shape, got \[1, 1, 2, 3\] and \[1, 1, 2, 2\]"):
         fuse(d, d, torch.ones(1, 1, 2, 3))
     with pytest.raises(ValueError, match="1 channel"):

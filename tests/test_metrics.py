@@ -9,6 +9,7 @@ from scipy.ndimage import median_filter
 from skimage.metrics import peak_signal_noise_ratio
 
 from tof_fpn_torch import metrics as M
+from tof_fpn_torch.runtime import valid_mask
 from tof_fpn_torch.sim import Camera, Simulation, synthetic_scene
 
 
@@ -43,7 +44,7 @@ def test_invalid_target_pixels_are_excluded_and_masks_combine():
     gt2 = gt.clone()
     gt2[0, 0, :3] = float("nan")
     gt2[0, 0, 3, :5] = 0.0
-    keep = M.valid_depth_mask(gt2)
+    keep = valid_mask(gt2)
     e = (pred - gt)[keep].numpy()
     np.testing.assert_allclose(float(M.rmse(pred, gt2)), np.sqrt((e**2).mean()), rtol=1e-12)
     user = torch.zeros_like(keep)
@@ -59,7 +60,7 @@ def test_metric_errors():
     with pytest.raises(ValueError, match="NaN/inf"):
         M.psnr(bad, gt)
     # excluding it explicitly works
-    assert torch.isfinite(M.psnr(bad, gt, M.valid_depth_mask(bad))).all()
+    assert torch.isfinite(M.psnr(bad, gt, valid_mask(bad))).all()
     with pytest.raises(ValueError, match="no valid pixel"):
         M.rmse(pred, gt, torch.zeros_like(gt, dtype=torch.bool))
     with pytest.raises(ValueError, match="same shape"):

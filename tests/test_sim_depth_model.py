@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from tof_fpn_torch.metrics import psnr
+from tof_fpn_torch.analysis.metrics import psnr
 from tof_fpn_torch.sim import (
     FPN_ALPHA,
     FPN_BETA,

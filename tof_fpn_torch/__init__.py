@@ -1,42 +1,81 @@
 """tof_fpn_torch: fixed-pattern-noise suppression for Time-of-Flight depth data.
 
-Offline design (NumPy/SciPy): :mod:`tof_fpn_torch.design`, :mod:`tof_fpn_torch.remez`.
+Layers (docs/architecture.md), each a subpackage that may import only the ones below it:
+
+- :mod:`.constants` -- the paper's numbers and the defaults (standard library only);
+- :mod:`.runtime` -- the torch-only stage: :class:`FPNFilter`, :class:`AmplitudeFusion`,
+  :class:`FPNSuppression`, and the validity rule :func:`valid_mask`;
+- :mod:`.denoise` -- torch-only denoisers (:class:`NonLocalMeans`);
+- :mod:`.design` -- offline NumPy/SciPy filter design (:func:`design_fpn`);
+- :mod:`.analysis` -- metrics (:func:`psnr`) and stripe estimation (:func:`estimate_stripes`);
+- :mod:`.sim` -- the raw-level simulator;
+- :mod:`.build` -- run-time modules from a design or from data (:func:`suppression_from_design`);
+- :mod:`.experiments`, :mod:`.export`, :mod:`.cli` -- the paper's experiments, export, ``tof-fpn``.
+
+The names below are loaded on first use, so ``import tof_fpn_torch.runtime`` loads torch only.
 """
 
-from . import denoise, metrics, sim
-from .denoise import NonLocalMeans, non_local_means
-from .design import FPNDesign, design_fpn, design_fpn_filter
-from .fpn_filter import FPNFilter
-from .fusion import AmplitudeFusion
-from .metrics import psnr
-from .remez import RemezConvergenceError
-from .sim import Camera, Scene, Simulation, planar_scene, synthetic_scene
-from .stripes import StripeComponent, StripeEstimate, estimate_stripes
-from .suppression import FPNSuppression
+from __future__ import annotations
 
-__version__ = "0.1.0"
+import importlib
 
-__all__ = [
-    "AmplitudeFusion",
-    "Camera",
-    "FPNDesign",
-    "FPNFilter",
-    "FPNSuppression",
-    "NonLocalMeans",
-    "RemezConvergenceError",
-    "Scene",
-    "Simulation",
-    "StripeComponent",
-    "StripeEstimate",
-    "__version__",
+__version__ = "0.2.0"
+
+#: public name -> the module that defines it
+_EXPORTS: dict[str, str] = {
+    "AmplitudeFusion": "runtime",
+    "FPNFilter": "runtime",
+    "FPNSuppression": "runtime",
+    "fpn_filter": "runtime",
+    "valid_mask": "runtime",
+    "NonLocalMeans": "denoise",
+    "non_local_means": "denoise",
+    "FPNDesign": "design",
+    "RemezConvergenceError": "design",
+    "design_fpn": "design",
+    "design_fpn_filter": "design",
+    "StripeComponent": "analysis",
+    "StripeEstimate": "analysis",
+    "estimate_stripes": "analysis",
+    "psnr": "analysis",
+    "filter_from_design": "build",
+    "suppression_from_data": "build",
+    "suppression_from_design": "build",
+    "Camera": "sim",
+    "Scene": "sim",
+    "Simulation": "sim",
+    "planar_scene": "sim",
+    "synthetic_scene": "sim",
+}
+_MODULES: dict[str, str] = {"metrics": "analysis.metrics"}
+_SUBPACKAGES = (
+    "analysis",
+    "build",
+    "cli",
+    "constants",
     "denoise",
-    "design_fpn",
-    "design_fpn_filter",
-    "estimate_stripes",
-    "metrics",
-    "non_local_means",
-    "planar_scene",
-    "psnr",
+    "design",
+    "experiments",
+    "export",
+    "runtime",
     "sim",
-    "synthetic_scene",
-]
+)
+
+__all__ = sorted([*_EXPORTS, *_MODULES, *_SUBPACKAGES, "__version__"])
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    elif name in _MODULES:
+        value = importlib.import_module(f".{_MODULES[name]}", __name__)
+    elif name in _SUBPACKAGES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__

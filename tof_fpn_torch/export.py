@@ -1,48 +1,77 @@
 """TorchScript and ONNX export of the run-time modules (:class:`FPNSuppression`, :class:`FPNFilter`).
 
-Export uses a copy of the module in *export mode*: every :class:`FPNFilter` takes its branch-free
-path (invalid-pixel filling always on, out-of-place block-Toeplitz GEMM), which is mathematically
-identical to the in-place inference path and is checked against it in ``tests/test_export.py``.
-ONNX goes through ``torch.onnx.export(..., dynamo=True)`` with dynamic batch, height and width;
-data-dependent input checks (negative amplitude) are skipped in the exported graph.
+TorchScript scripts the module as it is (its fast path; TorchScript keeps the branches) and keeps
+the design attributes (``order``, ``rho``, ``notches``, ``dims``, ...). ONNX goes through
+``torch.onnx.export(..., dynamo=True)`` with dynamic batch, height and width; while it traces, every
+:class:`FPNFilter` sees :func:`torch.compiler.is_compiling` and takes its branch-free out-of-place
+path (mathematically identical to the in-place one, checked in ``tests/test_export.py``). The
+design attributes go into the ONNX model's ``metadata_props``. ONNX needs the ``onnx`` extra:
+``pip install "tof_fpn_torch[onnx]"``.
 """
 
 from __future__ import annotations
 
 import copy
+import json
 from pathlib import Path
 
 import torch
 from torch import nn
 
-from .fpn_filter import FPNFilter
+from .runtime import FPNFilter
 
-__all__ = ["MIN_OPSET", "export_onnx", "export_torchscript", "for_export"]
+__all__ = ["MIN_OPSET", "export_onnx", "export_torchscript", "filter_metadata"]
 
 MIN_OPSET = 17
+_ONNX_PACKAGES = ("onnx", "onnxscript")
 
 
-def for_export(module: nn.Module) -> nn.Module:
-    """Deep copy of ``module`` in eval mode with every :class:`FPNFilter` in export mode."""
+def _check_module(module) -> None:
     if not isinstance(module, nn.Module):
         raise ValueError(f"module must be a torch.nn.Module, got {type(module).__name__}")
-    out = copy.deepcopy(module).eval()
-    for sub in out.modules():
+
+
+def filter_metadata(module: nn.Module) -> dict[str, str]:
+    """``{key: JSON string}`` describing every :class:`FPNFilter` in ``module`` (design and
+    geometry), e.g. ``{"filter.order": "20", "filter.rho": "0.14", ...}``."""
+    out: dict[str, str] = {}
+    for name, sub in module.named_modules():
         if isinstance(sub, FPNFilter):
-            sub.export_mode = True
+            prefix = f"{name}." if name else ""
+            values = {
+                "order": sub.order,
+                "rho": None if sub.rho != sub.rho else sub.rho,  # NaN = unknown
+                "notches": sub.notches,
+                "dims": sub.dims,
+                "border": sub.border,
+                "taps": sub.taps.detach().cpu().tolist(),
+                "delay": sub.delay,
+                "compensated": sub.compensated,
+            }
+            out.update({prefix + k: json.dumps(v) for k, v in values.items()})
     return out
 
 
 def export_torchscript(module: nn.Module, path: str | Path | None = None) -> torch.jit.ScriptModule:
-    """``torch.jit.script`` the module (its normal, fast path; TorchScript handles the branches)
-    and save it to ``path`` if given."""
-    if not isinstance(module, nn.Module):
-        raise ValueError(f"module must be a torch.nn.Module, got {type(module).__name__}")
+    """``torch.jit.script`` a copy of the module in eval mode and save it to ``path`` if given
+    (parent directories are created)."""
+    _check_module(module)
     scripted = torch.jit.script(copy.deepcopy(module).eval())
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         scripted.save(str(path))
     return scripted
+
+
+def _require_onnx() -> None:
+    import importlib.util
+
+    missing = [p for p in _ONNX_PACKAGES if importlib.util.find_spec(p) is None]
+    if missing:
+        raise ModuleNotFoundError(
+            f"ONNX export needs {', '.join(missing)}: install the onnx extra with "
+            '`pip install "tof_fpn_torch[onnx]"` (or `pip install onnx onnxscript`)'
+        )
 
 
 def export_onnx(
@@ -52,7 +81,7 @@ def export_onnx(
     opset: int = 18,
     dynamic: bool = True,
 ) -> Path:
-    """Export to ONNX (opset >= 17) at ``path``.
+    """Export to ONNX (opset >= 17) at ``path``, with the design in ``metadata_props``.
 
     Args:
         module: e.g. :class:`FPNSuppression` (inputs ``depth, amplitude``) or :class:`FPNFilter`
@@ -60,10 +89,17 @@ def export_onnx(
         example_inputs: tensors to trace with; default (2, 1, 64, 80) float32 (one per input).
         opset: ONNX opset, >= 17.
         dynamic: dynamic batch, height and width (each >= 2).
+
+    Raises:
+        ModuleNotFoundError: the ``onnx`` extra is not installed (the message says how).
     """
+    _check_module(module)
     if isinstance(opset, bool) or not isinstance(opset, int) or opset < MIN_OPSET:
         raise ValueError(f"opset must be an int >= {MIN_OPSET}, got {opset!r}")
-    model = for_export(module)
+    _require_onnx()
+    import onnx
+
+    model = copy.deepcopy(module).eval()
     names = ["x"] if isinstance(model, FPNFilter) else ["depth", "amplitude"]
     if example_inputs is None:
         gen = torch.Generator().manual_seed(0)
@@ -94,4 +130,9 @@ def export_onnx(
         dynamic_shapes=dynamic_shapes,
         external_data=False,
     )
+    proto = onnx.load(str(path))
+    for key, value in filter_metadata(model).items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.save(proto, str(path))
     return path

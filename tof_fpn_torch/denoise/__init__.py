@@ -1,4 +1,7 @@
-"""Denoisers for depth maps (run-time path: torch only).
+"""Denoisers for depth maps (run-time layer: torch and kornia only, like :mod:`tof_fpn_torch.runtime`).
+
+May import: torch, kornia, :mod:`tof_fpn_torch.runtime` (validity rule, checks),
+:mod:`tof_fpn_torch.constants`. Must not import the design, analysis, simulator or experiments.
 
 - :class:`NonLocalMeans` / :func:`non_local_means`: non-local means (Buades et al. 2005) with
   per-pixel noise from the amplitude (eq. 2 of Georgiev et al. 2015) and invalid-pixel handling.

@@ -35,19 +35,10 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from .._checks import check_image
+from .. import constants as K
+from ..runtime._checks import check_image
 
-__all__ = ["DB2_DEC_HI", "MAD_TO_SIGMA", "estimate_noise_k", "estimate_sigma", "hh_kernel"]
-
-#: Daubechies-2 decomposition high-pass filter (``pywt.Wavelet('db2').dec_hi``).
-DB2_DEC_HI: list[float] = [
-    -0.48296291314453416,
-    0.8365163037378079,
-    -0.2241438680420134,
-    -0.12940952255126037,
-]
-#: ``1 / Phi^-1(3/4)``: median absolute value of N(0, 1) to its standard deviation.
-MAD_TO_SIGMA: float = 1.482602218505602
+__all__ = ["estimate_noise_k", "estimate_sigma", "hh_kernel"]
 
 
 def hh_kernel(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -56,10 +47,7 @@ def hh_kernel(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     ``pywt`` convolves with ``dec_hi`` and keeps odd full-convolution samples; as a
     cross-correlation with stride 2 that is the outer product of the *reversed* filter.
     """
-    g = torch.tensor(
-        [-0.12940952255126037, -0.2241438680420134, 0.8365163037378079, -0.48296291314453416],
-        dtype=torch.float64,
-    )  # DB2_DEC_HI reversed (a literal: TorchScript cannot read module-level lists)
+    g = torch.tensor(K.DB2_DEC_HI, dtype=torch.float64).flip(0)
     return torch.outer(g, g).to(dtype=dtype, device=device).reshape(1, 1, 4, 4)
 
 
@@ -122,7 +110,7 @@ def _estimate_sigma(
     :func:`hh_kernel` in the dtype of ``x``, ``valid`` (B, C, H, W) bool or None."""
     d = _detail(x, kernel)
     keep = _valid_coefficients(x, valid, kernel) & (d != 0)
-    return _median_abs(d, keep) * 1.482602218505602  # MAD_TO_SIGMA
+    return _median_abs(d, keep) * K.MAD_TO_SIGMA
 
 
 def _estimate_noise_k(
@@ -140,7 +128,7 @@ def _estimate_noise_k(
     s2 = F.conv2d(inv_a2, kernel * kernel, stride=2)  # (B, 1, h, w): var(d) / k^2
     keep = _valid_coefficients(x, ok, kernel) & (d != 0) & (s2 > 0)
     ratio = d / s2.clamp_min(1e-30).sqrt()
-    return _median_abs(ratio, keep) * 1.482602218505602  # MAD_TO_SIGMA
+    return _median_abs(ratio, keep) * K.MAD_TO_SIGMA
 
 
 def estimate_sigma(x: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:

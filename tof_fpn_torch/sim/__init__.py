@@ -1,9 +1,13 @@
-"""Raw-level ToF simulator, the paper's depth-domain noise model and test scenes.
+"""Raw-level ToF simulator, the paper's depth-domain noise model and test scenes (torch).
+
+May import: torch, :mod:`tof_fpn_torch.runtime` (validity rule), :mod:`tof_fpn_torch.constants`.
+Sits beside the run-time package, never below it: the simulator produces depth, amplitude and raw
+samples that the stages, experiments and diagnosis consume.
 
 * :mod:`~tof_fpn_torch.sim.camera` -- :class:`Camera` settings; eq. (1) decoder
   :func:`depth_from_samples` / :class:`DepthFromSamples`.
-* :mod:`~tof_fpn_torch.sim.terms` -- the named physical terms (photons, shot noise, read-out FPN,
-  read noise, ADC, impulsive pixels).
+* :mod:`~tof_fpn_torch.sim.terms` -- the named physical terms (photons, shot noise, read noise);
+  :mod:`~tof_fpn_torch.sim.readout` -- read-out FPN, ADC, impulsive pixels.
 * :mod:`~tof_fpn_torch.sim.simulator` -- :class:`Simulation` (camera + list of terms) and
   :func:`simulate`.
 * :mod:`~tof_fpn_torch.sim.depth_model` -- eq. (2) noise and the eq. (10) FPN in the depth domain.
@@ -36,19 +40,10 @@ from .depth_model import (
     noise_lambda,
     noise_lambda_for_psnr,
 )
+from .readout import ADC, ImpulsivePixels, ReadoutFPN, default_terms
 from .scenes import MATERIALS, Scene, planar_scene, synthetic_scene
 from .simulator import SimResult, Simulation, simulate
-from .terms import (
-    ADC,
-    ImpulsivePixels,
-    Photons,
-    ReadNoise,
-    ReadoutFPN,
-    ShotNoise,
-    SimState,
-    Term,
-    default_terms,
-)
+from .terms import Photons, ReadNoise, ShotNoise, SimState, Term
 
 __all__ = [
     "ADC",

@@ -11,9 +11,10 @@ from dataclasses import dataclass
 
 import torch
 
+from .readout import ADC
 from .scenes import Scene
 from .simulator import Simulation
-from .terms import ADC, Photons
+from .terms import Photons
 
 __all__ = ["AmplitudeCurve", "depth_noise_vs_amplitude", "fpn_error_vs_amplitude", "loglog_slope"]
 

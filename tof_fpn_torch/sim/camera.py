@@ -41,6 +41,8 @@ from dataclasses import dataclass, fields
 import torch
 from torch import nn
 
+from .. import constants as K
+
 __all__ = [
     "SPEED_OF_LIGHT_AIR",
     "Camera",
@@ -49,8 +51,7 @@ __all__ = [
     "unambiguous_range",
 ]
 
-#: Speed of light in dry air (m/s): c / n_air with n_air = 1.000293 (the paper's ``c_L``).
-SPEED_OF_LIGHT_AIR: float = 299_792_458.0 / 1.000293
+SPEED_OF_LIGHT_AIR: float = K.SPEED_OF_LIGHT_AIR  # re-exported: c / n_air, the paper's ``c_L``
 
 
 def _as_float(value, name: str) -> float:
@@ -94,7 +95,7 @@ class Camera:
         full_well: saturation charge in e- (> 0); charge above it is clipped.
     """
 
-    modulation_frequency: float = 20e6
+    modulation_frequency: float = K.CAMCUBE_MODULATION_FREQUENCY_HZ
     n_phases: int = 4
     integration_time: float = 2e-3
     illumination_power: float = 1.0
@@ -141,7 +142,7 @@ class Camera:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-def unambiguous_range(modulation_frequency: float = 20e6) -> float:
+def unambiguous_range(modulation_frequency: float = K.CAMCUBE_MODULATION_FREQUENCY_HZ) -> float:
     """Largest depth ``c_L / (2 f)`` (m) that eq. (1) recovers without phase wrapping."""
     f = _check_range(modulation_frequency, "modulation_frequency", 0.0, strict=True, unit=" Hz")
     return SPEED_OF_LIGHT_AIR / (2.0 * f)
@@ -165,7 +166,7 @@ def _decode(
     proj = torch.matmul(weights, samples.reshape(b, n, h * w)).view(b, 3, h, w)
     real, imag, offset = proj[:, 0:1], proj[:, 1:2], proj[:, 2:3]
     phase = torch.remainder(torch.atan2(imag, real), 2.0 * math.pi)
-    c_l = 299_792_458.0 / 1.000293  # SPEED_OF_LIGHT_AIR (a literal for TorchScript)
+    c_l = K.SPEED_OF_LIGHT_AIR
     depth = phase * (c_l / (4.0 * math.pi * modulation_frequency))
     amplitude = torch.hypot(real, imag) * (2.0 / n)
     return depth, amplitude, offset
@@ -190,7 +191,7 @@ def _check_samples(samples: torch.Tensor, modulation_frequency: float) -> None:
 
 
 def depth_from_samples(
-    samples: torch.Tensor, modulation_frequency: float = 20e6
+    samples: torch.Tensor, modulation_frequency: float = K.CAMCUBE_MODULATION_FREQUENCY_HZ
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Depth, amplitude and offset from N correlation samples by eq. (1).
 
@@ -225,7 +226,9 @@ class DepthFromSamples(nn.Module):
         - Output: three (B, 1, H, W) tensors: depth (m), amplitude, offset.
     """
 
-    def __init__(self, n_phases: int = 4, modulation_frequency: float = 20e6) -> None:
+    def __init__(
+        self, n_phases: int = 4, modulation_frequency: float = K.CAMCUBE_MODULATION_FREQUENCY_HZ
+    ) -> None:
         super().__init__()
         if isinstance(n_phases, bool) or not isinstance(n_phases, int) or n_phases < 4:
             raise ValueError(f"n_phases must be an int >= 4, got {n_phases!r}")

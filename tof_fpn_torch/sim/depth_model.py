@@ -49,6 +49,7 @@ import math
 import torch
 from torch import nn
 
+from .. import constants as K
 from .camera import SPEED_OF_LIGHT_AIR, Camera, _as_float
 
 __all__ = [
@@ -66,11 +67,11 @@ __all__ = [
     "noise_lambda_for_psnr",
 ]
 
-FPN_ALPHA: float = -3.966
-FPN_BETA: float = 0.012
-FPN_GAMMA: float = 5.25
-#: Amplitude below which the paper calls the sensing "low" (Sec. II-A, Table II).
-LOW_SENSING_THRESHOLD: float = 300.0
+# re-exported from the one place they are written
+FPN_ALPHA: float = K.FPN_ALPHA
+FPN_BETA: float = K.FPN_BETA
+FPN_GAMMA: float = K.FPN_GAMMA
+LOW_SENSING_THRESHOLD: float = K.LOW_SENSING_THRESHOLD
 
 
 def _check_amp(amplitude: torch.Tensor) -> None:
@@ -179,9 +180,10 @@ class DepthFPN(nn.Module):
     """Module form of :func:`add_depth_fpn` (eq. 10), parameters as attributes.
 
     Args:
-        frequencies: ``omega_FPN``, default ``(pi, 2 pi / 3)``.
+        frequencies: ``omega_FPN``, default ``(2 pi / 3, pi)``.
         phases: ``theta_k`` (default zeros).
-        alpha, beta, gamma: default -3.966, 0.012, 5.25 (Sec. IV-B).
+        alpha, beta, gamma: default :data:`~tof_fpn_torch.constants.FPN_ALPHA`, ``FPN_BETA``,
+            ``FPN_GAMMA`` (Sec. IV-B).
         amplitude_ref: ``A_LS``, 300.
         axis: ``"columns"`` (vertical stripes) or ``"rows"``.
 
@@ -191,7 +193,7 @@ class DepthFPN(nn.Module):
 
     def __init__(
         self,
-        frequencies: tuple[float, ...] = (math.pi, 2 * math.pi / 3),
+        frequencies: tuple[float, ...] = K.FPN_FREQUENCIES,
         phases: tuple[float, ...] | None = None,
         alpha: float = FPN_ALPHA,
         beta: float = FPN_BETA,
@@ -298,7 +300,7 @@ def noise_lambda_for_psnr(
     target_psnr: float,
     *,
     amplitude_floor: float = 1.0,
-    d_max: float = 7.5,
+    d_max: float = K.D_MAX,
 ) -> float:
     """``lambda`` such that ``add_depth_noise(depth, amplitude, lambda)`` has, in expectation, PSNR
     ``target_psnr`` (eq. 9) against ``reference``.

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import torch
 
+from .. import constants as K
+
 __all__ = ["Scene", "planar_scene", "synthetic_scene"]
 
 
@@ -209,13 +211,13 @@ def _one_synthetic(
 
 
 def synthetic_scene(
-    height: int = 204,
-    width: int = 204,
+    height: int = K.CAMCUBE_SIZE,
+    width: int = K.CAMCUBE_SIZE,
     *,
     seed: int = 0,
     batch: int = 1,
     depth_range: tuple[float, float] = (0.3, 7.45),
-    amplitude_max: float = 300.0,
+    amplitude_max: float = K.LOW_SENSING_THRESHOLD,
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
 ) -> Scene:
@@ -269,8 +271,8 @@ MATERIALS: dict[str, float] = {
 
 
 def planar_scene(
-    height: int = 204,
-    width: int = 204,
+    height: int = K.CAMCUBE_SIZE,
+    width: int = K.CAMCUBE_SIZE,
     *,
     seed: int = 0,
     batch: int = 1,
@@ -333,7 +335,7 @@ def planar_scene(
         out_r.append(refl.clamp(0.01, 1.0))
     depth = torch.stack(out_d)[:, None]
     refl = torch.stack(out_r)[:, None]
-    amp = 300.0 * refl / depth**2
+    amp = K.LOW_SENSING_THRESHOLD * refl / depth**2
     return Scene(
         depth=depth.to(device=device, dtype=dtype),
         reflectance=refl.to(device=device, dtype=dtype),

@@ -8,8 +8,9 @@ from dataclasses import dataclass, field
 import torch
 
 from .camera import Camera, depth_from_samples
+from .readout import default_terms
 from .scenes import Scene
-from .terms import SimState, Term, default_terms
+from .terms import SimState, Term
 
 __all__ = ["SimResult", "Simulation", "simulate"]
 

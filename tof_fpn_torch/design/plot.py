@@ -1,4 +1,4 @@
-"""Figures (matplotlib, offline only): filter responses and design sweeps."""
+"""Figure of a designed filter (matplotlib, offline only): Fig. 6 of the paper."""
 
 from __future__ import annotations
 
@@ -7,16 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .design import FPNDesign, zero_phase_response
+from ..plotting import pyplot
+from .notch import FPNDesign
+from .response import zero_phase_response
 
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+__all__ = ["plot_response"]
 
 
 def plot_response(design: FPNDesign, path: str | Path, *, num_points: int = 4096) -> Path:
@@ -24,7 +19,7 @@ def plot_response(design: FPNDesign, path: str | Path, *, num_points: int = 4096
 
     The inset shows ``H(w) - 1`` (zero-phase, linear) in the passbands, i.e. the ripple ``delta``.
     """
-    plt = _pyplot()
+    plt = pyplot()
     omega = np.linspace(0.0, math.pi, num_points)
     h = zero_phase_response(design.taps, omega)
     mag_db = 20 * np.log10(np.maximum(np.abs(h), 1e-12))

@@ -7,13 +7,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = [
-    "check_image",
-    "check_nonnegative",
-    "check_same_shape",
-    "check_taps",
-    "normalize_dims",
-]
+__all__ = ["check_image", "check_same_shape", "check_taps", "normalize_dims"]
 
 
 def check_image(x: torch.Tensor, name: str, channels: int | None = None) -> None:
@@ -78,16 +72,3 @@ def normalize_dims(dim) -> tuple[int, ...]:
     if not out or len(set(out)) != len(out):
         raise ValueError(f"dim must name -1 and/or -2 once each, got {dim!r}")
     return tuple(sorted(out))
-
-
-def check_nonnegative(x: torch.Tensor, name: str) -> None:
-    """Raise if ``x`` has negative entries (skipped while torch.export/dynamo traces: the check
-    depends on data)."""
-    if torch.jit.is_scripting():
-        negative = bool((x < 0).any())
-    elif torch.compiler.is_compiling() or torch.jit.is_tracing():
-        negative = False
-    else:
-        negative = bool((x < 0).any())
-    if negative:
-        raise ValueError(f"{name} must be >= 0, got minimum {float(x.min())}")

@@ -1,4 +1,6 @@
-"""``tof-fpn`` command line: one sub-command per module in :mod:`tof_fpn_torch.commands`.
+"""``tof-fpn`` command line: one sub-command per module of this package (the top layer).
+
+May import every other layer; nothing imports it.
 
 Each command module defines ``register(subparsers)``, which adds its parser and sets
 ``func=<callable(args) -> int>`` as the parser default.
@@ -11,7 +13,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-#: Sub-command modules under ``tof_fpn_torch.commands``, in the order ``--help`` lists them.
+#: Sub-command modules under ``tof_fpn_torch.cli``, in the order ``--help`` lists them.
 COMMANDS: tuple[str, ...] = ("design", "export", "reproduce", "demo")
 
 
@@ -22,7 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        importlib.import_module(f"tof_fpn_torch.commands.{name}").register(sub)
+        importlib.import_module(f"tof_fpn_torch.cli.{name}").register(sub)
     return parser
 
 

@@ -4,15 +4,16 @@ Eq. (9) (garbled in the seed text) reads, with ``N_P`` the number of evaluated p
 
     MSE = (1 / N_P) sum_x (D_GT(x) - D_C(x))^2,      PSNR = 20 log10(D_MAX / sqrt(MSE))  [dB]
 
-i.e. the usual ``10 log10(D_MAX^2 / MSE)`` with the peak set to the depth range ``D_MAX = 7.5 m``
-(the 20 MHz unambiguous range ``c_L / 2f = 7.49 m``), whatever the scene's actual maximum.
+i.e. the usual ``10 log10(D_MAX^2 / MSE)`` with the peak set to the depth range
+:data:`~tof_fpn_torch.constants.D_MAX` (7.5 m, the 20 MHz unambiguous range ``c_L / 2f = 7.49 m``),
+whatever the scene's actual maximum.
 
 Masks: every function takes an optional ``mask`` (B, 1, H, W) bool. The evaluated pixels are
-``mask & valid_depth_mask(target)``: a ground-truth pixel that is NaN, inf or <= 0 (the usual
-"invalid" code) never counts. A non-finite *prediction* inside the evaluated pixels raises
-:class:`ValueError` rather than being dropped silently; exclude such pixels with ``mask`` (e.g.
-``valid_depth_mask(pred)``) if that is what you want, and report how many you dropped. A zero
-prediction is a number and counts as an error of ``D_GT``.
+``mask & valid_mask(target)`` (:func:`~tof_fpn_torch.runtime.valid_mask`, the package's one
+validity rule): a ground-truth pixel that is NaN, inf or <= 0 never counts. A non-finite
+*prediction* inside the evaluated pixels raises :class:`ValueError` rather than being dropped
+silently; exclude such pixels with ``mask`` (e.g. ``valid_mask(pred)``) if that is what you want,
+and report how many you dropped. A zero prediction is a number and counts as an error of ``D_GT``.
 
 All functions are batched and return one value per image, shape (B,); TorchScript-compatible.
 """
@@ -22,9 +23,10 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from .. import constants as K
+from ..runtime.validity import valid_mask
+
 __all__ = [
-    "D_MAX",
-    "LOW_SENSING_THRESHOLD",
     "impulsive_fraction",
     "impulsive_mask",
     "low_sensing_fraction",
@@ -33,13 +35,7 @@ __all__ = [
     "psnr",
     "rmse",
     "sensing_stats",
-    "valid_depth_mask",
 ]
-
-#: Peak depth of eq. (9), metres.
-D_MAX: float = 7.5
-#: Amplitude below which a pixel is "low-sensing" (Sec. II-A, Table II's LOW).
-LOW_SENSING_THRESHOLD: float = 300.0
 
 
 def _check_map(x: torch.Tensor, name: str) -> None:
@@ -49,12 +45,6 @@ def _check_map(x: torch.Tensor, name: str) -> None:
         raise ValueError(f"{name} must be floating point, got dtype {x.dtype}")
 
 
-def valid_depth_mask(depth: torch.Tensor) -> torch.Tensor:
-    """(B, 1, H, W) bool: finite and > 0 (NaN, inf and 0 mark invalid depth)."""
-    _check_map(depth, "depth")
-    return torch.isfinite(depth) & (depth > 0)
-
-
 def _eval_mask(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
     _check_map(pred, "pred")
     _check_map(target, "target")
@@ -62,7 +52,7 @@ def _eval_mask(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | No
         raise ValueError(
             f"pred and target must have the same shape, got {list(pred.shape)} and {list(target.shape)}"
         )
-    m = valid_depth_mask(target)
+    m = valid_mask(target)
     if mask is not None:
         if mask.shape != target.shape or mask.dtype != torch.bool:
             raise ValueError(
@@ -78,7 +68,7 @@ def _eval_mask(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | No
     if bool(bad.any()):
         raise ValueError(
             f"pred has {int(bad.sum())} NaN/inf value(s) at evaluated pixels; exclude them with "
-            "mask=valid_depth_mask(pred) (and report the share) or fill them"
+            "mask=valid_mask(pred) (and report the share) or fill them"
         )
     return m
 
@@ -89,7 +79,7 @@ def _masked_mean(err: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
 
 
 def mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-    """Mean squared depth error per image, (B,), over ``mask & valid_depth_mask(target)``."""
+    """Mean squared depth error per image, (B,), over ``mask & valid_mask(target)``."""
     m = _eval_mask(pred, target, mask)
     d = pred - target
     return _masked_mean(d * d, m)
@@ -112,14 +102,14 @@ def psnr(
     pred: torch.Tensor,
     target: torch.Tensor,
     mask: torch.Tensor | None = None,
-    d_max: float = D_MAX,
+    d_max: float = K.D_MAX,
 ) -> torch.Tensor:
     """Eq. (9): ``20 log10(d_max / sqrt(MSE))`` per image, dB, (B,); ``inf`` for a perfect match.
 
     Args:
         pred, target: (B, 1, H, W) depth in metres (target: the ground truth ``D_GT``).
         mask: optional (B, 1, H, W) bool, pixels to evaluate (ANDed with the valid target).
-        d_max: the peak, 7.5 m in the paper (> 0).
+        d_max: the peak, :data:`~tof_fpn_torch.constants.D_MAX` in the paper (> 0).
     """
     if not d_max > 0.0:
         raise ValueError(f"d_max must be > 0 m, got {d_max}")
@@ -129,7 +119,7 @@ def psnr(
 
 def low_sensing_fraction(
     amplitude: torch.Tensor,
-    threshold: float = LOW_SENSING_THRESHOLD,
+    threshold: float = K.LOW_SENSING_THRESHOLD,
     mask: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Share (0..1) of pixels with ``A < threshold`` per image, (B,) (Table II's LOW / 100).
@@ -146,11 +136,12 @@ def low_sensing_fraction(
 
 
 def _median3x3(depth: torch.Tensor) -> torch.Tensor:
-    """3 x 3 median ignoring invalid pixels (NaN inside), replicate padding, (B, 1, H, W)."""
+    """3 x 3 median ignoring invalid pixels (NaN inside), replicate padding, (B, 1, H, W).
+
+    Hand-written on purpose: ``kornia.filters.median_blur`` returns NaN for any window that holds
+    an invalid pixel, and the point here is the median of the *valid* neighbours."""
     b, _, h, w = depth.shape
-    x = torch.where(
-        torch.isfinite(depth) & (depth > 0), depth, torch.full_like(depth, float("nan"))
-    )
+    x = torch.where(valid_mask(depth), depth, torch.full_like(depth, float("nan")))
     x = F.pad(x, (1, 1, 1, 1), mode="replicate")
     patches = F.unfold(x, kernel_size=3).view(b, 9, h, w)
     return torch.nanmedian(patches, dim=1, keepdim=True).values
@@ -172,7 +163,7 @@ def impulsive_mask(
     ref = _median3x3(depth) if reference is None else reference
     if ref.shape != depth.shape:
         raise ValueError(f"reference must have shape {list(depth.shape)}, got {list(ref.shape)}")
-    invalid = ~(torch.isfinite(depth) & (depth > 0))
+    invalid = ~valid_mask(depth)
     far = torch.abs(depth - ref) > threshold  # NaN reference -> False
     return invalid | far
 
@@ -195,7 +186,7 @@ def sensing_stats(
     depth: torch.Tensor,
     amplitude: torch.Tensor,
     reference: torch.Tensor | None = None,
-    low_threshold: float = LOW_SENSING_THRESHOLD,
+    low_threshold: float = K.LOW_SENSING_THRESHOLD,
     impulse_threshold: float = 0.5,
 ) -> dict[str, torch.Tensor]:
     """Table II's ``{LOW, IMP}`` in percent per image: ``{"low": (B,), "imp": (B,)}``."""

@@ -238,7 +238,6 @@ def remez_cosine(
     if error is not None:
         error.coefficients = coeffs
         raise error
-    coeffs = _cosine_coefficients(lambda w: _barycentric_eval(np.cos(w), xi, ci, bi), degree)
     return RemezResult(coeffs, abs(delta), max_err, it, omega[ref])
 
 
@@ -272,13 +271,6 @@ def _initial_reference(omega: np.ndarray, band: np.ndarray, n_ref: int) -> np.nd
         if a > 0
     ]
     return np.unique(np.concatenate(idx))
-
-
-def _cheb_fractions(a: int) -> np.ndarray:
-    """``a`` points in [0, 1], denser towards both ends (Chebyshev extreme points)."""
-    if a == 1:
-        return np.array([0.5])
-    return (1 - np.cos(np.pi * np.arange(a) / (a - 1))) / 2
 
 
 def _barycentric_eval(x: np.ndarray, xi: np.ndarray, ci: np.ndarray, bi: np.ndarray) -> np.ndarray:

@@ -18,8 +18,11 @@ Sec. IV-B: 25 % of the signal at low amplitude, under 5 % above the low-sensing 
 
     D_A = delta_A(A) D_F + (1 - delta_A(A)) D              (eq. 11)
 
-with ``low = 70``, ``high = 350``, ``floor = 0.2`` in CamCube amplitude units. This is ``clamp``
-of a line, so it is continuous, monotone, and differentiable except at the two knots.
+with ``low``, ``high``, ``floor`` = :data:`~tof_fpn_torch.constants.FUSION_LOW`,
+:data:`~tof_fpn_torch.constants.FUSION_HIGH`, :data:`~tof_fpn_torch.constants.FUSION_FLOOR`
+(70, 350, 0.2 in CamCube amplitude units). This is ``clamp`` of a line, so it is continuous,
+monotone, and differentiable except at the two knots. Invalid pixels
+(:func:`~tof_fpn_torch.runtime.valid_mask` of depth and amplitude) keep their raw depth.
 """
 
 from __future__ import annotations
@@ -29,7 +32,9 @@ import math
 import torch
 from torch import nn
 
-from ._checks import check_image, check_nonnegative, check_same_shape
+from .. import constants as K
+from ._checks import check_image, check_same_shape
+from .validity import valid_mask
 
 __all__ = ["AmplitudeFusion", "amplitude_fusion", "amplitude_weight"]
 
@@ -47,24 +52,55 @@ def _check_params(low: float, high: float, floor: float) -> None:
 
 
 def amplitude_weight(
-    amplitude: torch.Tensor, low: float = 70.0, high: float = 350.0, floor: float = 0.2
+    amplitude: torch.Tensor,
+    low: float = K.FUSION_LOW,
+    high: float = K.FUSION_HIGH,
+    floor: float = K.FUSION_FLOOR,
 ) -> torch.Tensor:
     """``delta_A``: 1 below ``low``, linear to ``floor`` at ``high``, ``floor`` above."""
     slope = (1.0 - floor) / (high - low)
     return torch.clamp(1.0 - slope * (amplitude - low), min=floor, max=1.0)
 
 
+def _fuse(
+    filtered: torch.Tensor,
+    depth: torch.Tensor,
+    amplitude: torch.Tensor,
+    low: float,
+    high: float,
+    floor: float,
+) -> torch.Tensor:
+    delta = amplitude_weight(amplitude, low, high, floor).to(depth.dtype)
+    fused = depth + delta * (filtered - depth)
+    return torch.where(valid_mask(depth, amplitude), fused, depth)
+
+
 def amplitude_fusion(
     filtered: torch.Tensor,
     depth: torch.Tensor,
     amplitude: torch.Tensor,
-    low: float = 70.0,
-    high: float = 350.0,
-    floor: float = 0.2,
+    low: float = K.FUSION_LOW,
+    high: float = K.FUSION_HIGH,
+    floor: float = K.FUSION_FLOOR,
 ) -> torch.Tensor:
-    """``delta_A D_F + (1 - delta_A) D`` (eq. 11), computed as ``D + delta_A (D_F - D)``."""
-    delta = amplitude_weight(amplitude, low, high, floor).to(depth.dtype)
-    return depth + delta * (filtered - depth)
+    """``delta_A D_F + (1 - delta_A) D`` (eq. 11), computed as ``D + delta_A (D_F - D)``.
+
+    Args:
+        filtered, depth, amplitude: (B, 1, H, W) float; invalid pixels (depth or amplitude, by
+            :func:`~tof_fpn_torch.runtime.valid_mask`) return ``depth`` unchanged.
+        low, high, floor: the ramp of ``delta_A`` (0 <= low < high, floor in [0, 1]).
+
+    Example:
+        >>> d = torch.full((1, 1, 1, 3), 2.0)
+        >>> amplitude_fusion(d + 1, d, torch.tensor([[[[0.0, 210.0, float("nan")]]]]))
+        tensor([[[[3.0000, 2.6000, 2.0000]]]])
+    """
+    check_image(depth, "depth", 1)
+    check_image(amplitude, "amplitude", 1)
+    check_same_shape(filtered, depth, "filtered", "depth")
+    check_same_shape(amplitude, depth, "amplitude", "depth")
+    _check_params(low, high, floor)
+    return _fuse(filtered, depth, amplitude, low, high, floor)
 
 
 class AmplitudeFusion(nn.Module):
@@ -76,8 +112,8 @@ class AmplitudeFusion(nn.Module):
         floor: weight of the filtered depth for strong signals, in [0, 1].
 
     Shape:
-        - filtered, depth, amplitude: (B, 1, H, W) float, amplitude >= 0 (NaN allowed: gives NaN).
-        - Output: (B, 1, H, W). Invalid depth (NaN, or 0 in both inputs) stays invalid.
+        - filtered, depth, amplitude: (B, 1, H, W) float.
+        - Output: (B, 1, H, W). Invalid pixels keep ``depth``.
 
     Example:
         >>> fuse = AmplitudeFusion()
@@ -87,7 +123,9 @@ class AmplitudeFusion(nn.Module):
                   [2.6000, 2.2000]]]])
     """
 
-    def __init__(self, low: float = 70.0, high: float = 350.0, floor: float = 0.2) -> None:
+    def __init__(
+        self, low: float = K.FUSION_LOW, high: float = K.FUSION_HIGH, floor: float = K.FUSION_FLOOR
+    ) -> None:
         super().__init__()
         _check_params(low, high, floor)
         self.low = float(low)
@@ -108,5 +146,4 @@ class AmplitudeFusion(nn.Module):
         check_image(amplitude, "amplitude", 1)
         check_same_shape(filtered, depth, "filtered", "depth")
         check_same_shape(amplitude, depth, "amplitude", "depth")
-        check_nonnegative(amplitude, "amplitude")
-        return amplitude_fusion(filtered, depth, amplitude, self.low, self.high, self.floor)
+        return _fuse(filtered, depth, amplitude, self.low, self.high, self.floor)

@@ -7,7 +7,7 @@ noise averages out; row stripes likewise with rows and columns swapped.
 
 Method, per orientation:
 
-1. Valid pixels (finite, non-zero depth) get weight ``w = 1 / (1 + A / low)``: FPN dominates where
+1. Valid pixels (:func:`~tof_fpn_torch.runtime.valid_mask`) get weight ``w = 1 / (1 + A / low)``: FPN dominates where
    the amplitude is low (Sec. IV-B), so those pixels count most. Without amplitude, ``w = 1``.
 2. Each line is high-passed by subtracting its moving average over ``2 * smooth + 1`` valid
    samples (removes the scene's shape; periods shorter than ``~smooth`` pass), and residuals over
@@ -30,10 +30,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import kornia.filters as KF
 import torch
-import torch.nn.functional as F
 
-from ._checks import check_image, check_nonnegative, check_same_shape
+from .. import constants as K
+from ..runtime._checks import check_image, check_same_shape
+from ..runtime.validity import valid_mask
 
 __all__ = ["StripeComponent", "StripeEstimate", "estimate_stripes"]
 
@@ -82,21 +84,20 @@ def _highpass(x: torch.Tensor, valid: torch.Tensor, half: int) -> tuple[torch.Te
     last axis, and a mask that drops outliers (``|r| > 4 * 1.4826 * MAD`` of the line): the
     samples next to scene edges, which would otherwise spread over all frequencies."""
     v = valid.to(x.dtype)
-    k = torch.ones(1, 1, 2 * half + 1, dtype=x.dtype, device=x.device)
-    shape = x.shape
-    num = F.conv1d((x * v).reshape(-1, 1, shape[-1]), k, padding=half).reshape(shape)
-    den = F.conv1d(v.reshape(-1, 1, shape[-1]), k, padding=half).reshape(shape)
-    r = torch.where(valid, x - num / den.clamp_min(1.0), torch.zeros_like(x))
+    size = (1, 2 * half + 1)  # kornia's box filter along each line; zero padding outside
+    num = KF.box_blur((x * v).unsqueeze(1), size, border_type="constant").squeeze(1)
+    den = KF.box_blur(v.unsqueeze(1), size, border_type="constant").squeeze(1)
+    r = torch.where(valid, x - num / den.clamp_min(0.5 / (2 * half + 1)), torch.zeros_like(x))
     nan = torch.full_like(r, math.nan)
     mad = torch.nanmedian(torch.where(valid, r.abs(), nan), dim=-1, keepdim=True).values
-    keep = valid & (r.abs() <= 4.0 * 1.4826 * torch.nan_to_num(mad))
+    keep = valid & (r.abs() <= 4.0 * K.MAD_TO_SIGMA * torch.nan_to_num(mad))
     return r, keep
 
 
 def _running_median(p: torch.Tensor, half: int) -> torch.Tensor:
+    """Running median of a 1-D spectrum over ``2 half + 1`` bins (kornia, reflected ends)."""
     half = min(half, p.numel() - 1)
-    padded = F.pad(p.reshape(1, 1, -1), (half, half), mode="reflect").reshape(-1)
-    return padded.unfold(0, 2 * half + 1, 1).median(dim=-1).values
+    return KF.median_blur(p.view(1, 1, 1, -1), (1, 2 * half + 1), "reflect").view(-1)
 
 
 def _analyse(
@@ -170,7 +171,7 @@ def estimate_stripes(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     *,
-    low: float = 70.0,
+    low: float = K.FUSION_LOW,
     orientations: tuple[str, ...] = ("columns", "rows"),
     smooth: int = 8,
     min_frequency: float = 0.15 * math.pi,
@@ -180,8 +181,9 @@ def estimate_stripes(
     r"""Find periodic column and/or row patterns in depth frames (see the module docstring).
 
     Args:
-        depth: (B, 1, H, W) float depth; NaN and 0 are invalid and ignored.
-        amplitude: (B, 1, H, W), >= 0, or None (uniform weights).
+        depth: (B, 1, H, W) float depth; invalid pixels (:func:`~tof_fpn_torch.runtime.valid_mask`
+            of depth and amplitude) are ignored.
+        amplitude: (B, 1, H, W) or None (uniform weights).
         low: amplitude scale of the weights ``1 / (1 + A / low)``.
         orientations: any of ``"columns"`` (periodic along the width), ``"rows"``.
         smooth: half-width of the per-line moving average removed before averaging (>= 1).
@@ -194,13 +196,12 @@ def estimate_stripes(
         :class:`StripeEstimate` with components sorted by ``snr_db`` (strongest first).
 
     Raises:
-        ValueError: bad shapes/dtypes, negative amplitude, bad parameters, no valid pixel.
+        ValueError: bad shapes/dtypes, bad parameters, no valid pixel.
     """
     check_image(depth, "depth", 1)
     if amplitude is not None:
         check_image(amplitude, "amplitude", 1)
         check_same_shape(amplitude, depth, "amplitude", "depth")
-        check_nonnegative(amplitude, "amplitude")
     bad = [o for o in orientations if o not in ("columns", "rows")]
     if bad or not orientations:
         raise ValueError(f"orientations must be from ('columns', 'rows'), got {orientations!r}")
@@ -217,15 +218,14 @@ def estimate_stripes(
     if not math.isfinite(low) or low <= 0:
         raise ValueError(f"low must be finite and > 0, got {low!r}")
     d = depth[:, 0].double()
-    valid = torch.isfinite(d) & (d != 0)
+    valid = valid_mask(depth, amplitude)[:, 0]
     if amplitude is not None:
         a = amplitude[:, 0].double()
-        valid = valid & torch.isfinite(a)
-        w = 1.0 / (1.0 + torch.nan_to_num(a) / low)
+        w = 1.0 / (1.0 + torch.where(valid, a, torch.zeros_like(a)) / low)
     else:
         w = torch.ones_like(d)
     if not bool(valid.any()):
-        raise ValueError("depth has no valid pixel (all NaN, inf or 0)")
+        raise ValueError("depth has no valid pixel (NaN, inf, <= 0, or invalid amplitude)")
     w = torch.where(valid, w, torch.zeros_like(w))
     d = torch.where(valid, d, torch.zeros_like(d))
     components: list[StripeComponent] = []

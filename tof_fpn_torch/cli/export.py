@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..design import DEFAULT_NOTCHES
+from ..constants import DEFAULT_NOTCHES
 from .design import parse_frequency
 
 
@@ -40,13 +40,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..build import suppression_from_design
     from ..export import export_onnx, export_torchscript
-    from ..suppression import FPNSuppression
 
     dim = {"columns": -1, "rows": -2, "both": (-2, -1)}[args.dim]
-    module = FPNSuppression(
-        order=args.order,
-        rho=args.rho,
+    module = suppression_from_design(
+        args.order,
+        args.rho,
         notches=tuple(args.notch) if args.notch else DEFAULT_NOTCHES,
         dim=dim,
         adaptive=not args.no_adaptive,

@@ -48,23 +48,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..constants import DEFAULT_NOTCHES
+from .bands import check_notches, fpn_bands
 from .remez import RemezConvergenceError, remez_linear_phase
+from .response import fixed_zero_response, fixed_zero_taps, passband_ripple
 
-__all__ = [
-    "DEFAULT_NOTCHES",
-    "RIPPLE_FLOOR",
-    "FPNDesign",
-    "RemezConvergenceError",
-    "design_fpn",
-    "design_fpn_filter",
-    "fixed_zero_taps",
-    "fixed_zero_response",
-    "fpn_bands",
-    "passband_ripple",
-    "zero_phase_response",
-]
+__all__ = ["RIPPLE_FLOOR", "FPNDesign", "design_fpn", "design_fpn_filter"]
 
-DEFAULT_NOTCHES: tuple[float, ...] = (2 * math.pi / 3, math.pi)
 #: Ripple (-100 dB) below which a design is not held to the 0.5 % optimality check. Wide
 #: transition bands at high orders make ``G`` a high-degree polynomial extrapolated across the gaps
 #: between bands; evaluating it amplifies rounding by many orders of magnitude, and optima far below
@@ -72,133 +62,6 @@ DEFAULT_NOTCHES: tuple[float, ...] = (2 * math.pi / 3, math.pi)
 #: (zero-padding it back, same delay) to the highest one that verifies with a ripple under this
 #: floor, and reports it in :attr:`FPNDesign.g_order`: at most -100 dB of ripple is given away.
 RIPPLE_FLOOR = 1e-5
-_EDGE_TOL = 1e-12
-
-
-def _check_notches(notches: Sequence[float]) -> np.ndarray:
-    try:
-        w = np.asarray(notches, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"notches must be a sequence of floats, got {notches!r}") from exc
-    if w.size == 0:
-        raise ValueError("notches must hold at least one frequency in (0, pi], got none")
-    if not np.all(np.isfinite(w)):
-        raise ValueError(f"notches must be finite, got {w.tolist()}")
-    bad = w[(w <= 0) | (w > np.pi + _EDGE_TOL)]
-    if bad.size:
-        raise ValueError(
-            f"notches must lie in (0, pi] (radians per sample), got {bad.tolist()} in {w.tolist()}"
-        )
-    w = np.sort(np.minimum(w, np.pi))
-    if np.any(np.diff(w) <= 0):
-        raise ValueError(f"notches must be distinct, got {w.tolist()}")
-    return w
-
-
-def _check_rho(rho: float) -> float:
-    if isinstance(rho, bool) or not isinstance(rho, (int, float, np.floating, np.integer)):
-        raise ValueError(f"rho must be a real number, got {rho!r}")
-    rho = float(rho)
-    if not math.isfinite(rho) or rho <= 0:
-        raise ValueError(f"rho must be finite and > 0, got {rho!r}")
-    return rho
-
-
-def fpn_bands(rho: float, notches: Sequence[float] = DEFAULT_NOTCHES) -> np.ndarray:
-    """Passbands ``X`` with transition half-width ``rho * pi`` around every notch (eq. 8).
-
-    For the default notches ``X = [0, 2pi/3 - rho pi] U [2pi/3 + rho pi, pi - rho pi]``, which needs
-    ``0 < rho <= 1/6``. For custom notches a band follows the last notch up to ``pi`` when that notch
-    is below ``pi``.
-
-    Returns:
-        ``(K, 2)`` float64 band edges in radians.
-
-    Raises:
-        ValueError: ``rho`` not finite/positive, or bands that would be empty or overlap.
-    """
-    rho = _check_rho(rho)
-    w = _check_notches(notches)
-    half = rho * np.pi
-    edges = [(0.0, w[0] - half)]
-    for a, b in zip(w[:-1], w[1:], strict=True):
-        edges.append((a + half, b - half))
-    if w[-1] < np.pi:
-        edges.append((w[-1] + half, np.pi))
-    bands = np.array(edges)
-    width = bands[:, 1] - bands[:, 0]
-    if np.any(width < -_EDGE_TOL):
-        if np.allclose(w, DEFAULT_NOTCHES):
-            allowed = "(0, 1/6] for the default notches (2pi/3, pi)"
-        else:
-            gaps = np.diff(np.concatenate([[0.0], w, [np.pi]]))
-            limit = min(gaps[0], gaps[-1] if w[-1] < np.pi else np.inf, *(gaps[1:-1] / 2))
-            allowed = f"(0, {limit / np.pi:.6g}] for notches {w.tolist()}"
-        raise ValueError(
-            f"rho={rho!r} makes the passbands empty or overlap (bands {bands.tolist()}); "
-            f"rho must lie in {allowed}"
-        )
-    thin = bands[:, 1] - bands[:, 0] <= _EDGE_TOL
-    bands[thin, 1] = bands[thin, 0]  # a band of width ~0 (rho = 1/6) is one point
-    return bands
-
-
-def fixed_zero_taps(notches: Sequence[float] = DEFAULT_NOTCHES) -> np.ndarray:
-    """Coefficients of ``A(z)``: ``1 - 2cos(w0) z^-1 + z^-2`` per notch in (0, pi), ``1 + z^-1`` at pi."""
-    a = np.ones(1)
-    for w0 in _check_notches(notches):
-        factor = [1.0, 1.0] if w0 >= np.pi else [1.0, -2.0 * math.cos(w0), 1.0]
-        a = np.convolve(a, factor)
-    return a
-
-
-def fixed_zero_response(
-    omega: np.ndarray, notches: Sequence[float] = DEFAULT_NOTCHES
-) -> np.ndarray:
-    """Signed zero-phase response ``A(w)`` of :func:`fixed_zero_taps` (e.g. ``A1(w) = 1 + 2cos w``)."""
-    omega = np.asarray(omega, dtype=np.float64)
-    out = np.ones_like(omega)
-    for w0 in _check_notches(notches):
-        out = out * (2 * np.cos(omega / 2) if w0 >= np.pi else 2 * np.cos(omega) - 2 * math.cos(w0))
-    return out
-
-
-def zero_phase_response(taps: np.ndarray, omega: np.ndarray) -> np.ndarray:
-    """Real response ``H(w)`` of symmetric taps, ``H(e^jw) = e^{-j w N/2} H(w)``."""
-    taps = np.asarray(taps, dtype=np.float64)
-    n = np.arange(taps.size) - (taps.size - 1) / 2
-    return np.cos(np.outer(np.asarray(omega, dtype=np.float64), n)) @ taps
-
-
-def passband_ripple(taps: np.ndarray, bands: np.ndarray, num_points: int = 4096) -> np.ndarray:
-    """``max |H(w) - 1|`` in each band; shape ``(K,)``.
-
-    Evaluated on a uniform FFT grid of ``num_points + 1`` frequencies over ``[0, pi]`` plus the band
-    edges; every local maximum inside a band is then re-evaluated exactly at the vertex of the
-    parabola through its three grid values (the peak to ~1e-12 relative).
-    """
-    taps = np.asarray(taps, dtype=np.float64)
-    bands = np.asarray(bands, dtype=np.float64).reshape(-1, 2)
-    omega = np.linspace(0.0, np.pi, num_points + 1)
-    step = omega[1]
-    spectrum = np.fft.rfft(taps, 2 * num_points)
-    err = np.abs((spectrum * np.exp(1j * omega * (taps.size - 1) / 2)).real - 1.0)
-    edge_err = np.abs(zero_phase_response(taps, bands.ravel()) - 1.0).reshape(-1, 2).max(axis=1)
-    out = np.empty(bands.shape[0])
-    for k, (lo, hi) in enumerate(bands):
-        idx = np.flatnonzero((omega >= lo) & (omega <= hi))
-        e = err[idx]
-        out[k] = max(edge_err[k], e.max(initial=0.0))
-        if e.size < 3:
-            continue
-        i = np.flatnonzero((e[1:-1] >= e[:-2]) & (e[1:-1] >= e[2:])) + 1
-        a, b, c = e[i - 1], e[i], e[i + 1]
-        denom = a - 2 * b + c
-        shift = np.where(denom < 0, 0.5 * (a - c) / np.where(denom < 0, denom, -1.0), 0.0)
-        vertex = np.clip(omega[idx[i]] + np.clip(shift, -1, 1) * step, lo, hi)
-        refined = np.abs(zero_phase_response(taps, vertex) - 1.0)
-        out[k] = max(out[k], refined.max(initial=0.0))
-    return out
 
 
 @dataclass(frozen=True)
@@ -313,7 +176,7 @@ def design_fpn(
         raise ValueError(f"grid_density must be an integer >= 4, got {grid_density!r}")
     if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
         raise ValueError(f"maxiter must be an integer >= 1, got {maxiter!r}")
-    w = _check_notches(notches)
+    w = check_notches(notches)
     bands = fpn_bands(rho, w)
     a_taps = fixed_zero_taps(w)
     n_fixed = a_taps.size - 1

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design import DEFAULT_NOTCHES, design_fpn, fixed_zero_taps
+from ..constants import DEFAULT_NOTCHES
+from ..design import design_fpn, fixed_zero_taps
 
 _FREQ = re.compile(r"^\s*([0-9.eE+-]*)\s*\*?\s*(pi)?\s*(?:/\s*([0-9.eE+-]+))?\s*$")
 
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     np.save(args.out, design.taps)
     if args.plot:
-        from ..viz import plot_response
+        from ..design.plot import plot_response
 
         plot_response(design, args.plot)
     report = design.summary()

@@ -1,0 +1,129 @@
+r"""Builders: run-time modules from an offline design or from data (the layer above both).
+
+The run-time package (:mod:`tof_fpn_torch.runtime`) takes filter taps and knows nothing of how they
+were designed; the design package (:mod:`tof_fpn_torch.design`) produces taps and knows nothing of
+torch. These factories join them: they design the taps (NumPy / SciPy), or first estimate the
+stripes in data (:mod:`tof_fpn_torch.analysis`), then build the torch modules and record on them
+what the design was (``order``, ``rho``, ``notches``, which TorchScript and ONNX exports keep).
+
+Example:
+    >>> stage = suppression_from_design(20, 0.14)
+    >>> stage.filter.order, stage.filter.rho, stage.filter.taps.shape
+    (20, 0.14, torch.Size([21]))
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+
+from . import constants as K
+from .analysis.stripes import StripeEstimate, estimate_stripes
+from .design import compensate_half_sample, design_fpn, max_rho
+from .runtime import FPNFilter, FPNSuppression
+
+__all__ = ["filter_from_design", "suppression_from_data", "suppression_from_design"]
+
+
+def _design(order, rho, notches, band_weights, compensate_delay):
+    design = design_fpn(order, rho, notches=notches, band_weights=band_weights)
+    taps = design.taps
+    compensated = bool(compensate_delay) and taps.size % 2 == 0
+    if compensated:
+        # the interpolator's band reaches the top passband edge (at most 0.95 pi)
+        taps = compensate_half_sample(
+            taps, band_edge=float(min(design.bands[-1, 1], 0.95 * math.pi))
+        )
+    meta = {
+        "order": design.order,
+        "rho": design.rho,
+        "notches": design.notches,
+        "compensated": compensated,
+    }
+    return design, torch.from_numpy(taps), meta
+
+
+def filter_from_design(
+    order: int = K.DEFAULT_ORDER,
+    rho: float = K.DEFAULT_RHO,
+    *,
+    notches: Sequence[float] = K.DEFAULT_NOTCHES,
+    band_weights: Sequence[float] | None = None,
+    compensate_delay: bool = False,
+    **kwargs,
+) -> FPNFilter:
+    """Design taps with :func:`tof_fpn_torch.design.design_fpn` and build an :class:`FPNFilter`.
+
+    ``compensate_delay`` convolves the taps of an odd order with a half-sample interpolator
+    (:func:`tof_fpn_torch.design.compensate_half_sample`), so the output stays on the input grid.
+    ``kwargs`` go to :class:`FPNFilter` (``dim``, ``border``, ``trainable``). The design is kept in
+    ``module.design``.
+    """
+    design, taps, meta = _design(order, rho, notches, band_weights, compensate_delay)
+    module = FPNFilter(taps, **kwargs, **meta)
+    module.design = design
+    return module
+
+
+def suppression_from_design(
+    order: int = K.DEFAULT_ORDER,
+    rho: float = K.DEFAULT_RHO,
+    *,
+    notches: Sequence[float] = K.DEFAULT_NOTCHES,
+    band_weights: Sequence[float] | None = None,
+    compensate_delay: bool = False,
+    **kwargs,
+) -> FPNSuppression:
+    """Design taps and build an :class:`FPNSuppression` (filter + eq. 11 fusion).
+
+    Defaults: Table I's best adaptive filter ``{20, 0.14}`` with notches at ``2pi/3`` and ``pi``.
+    ``kwargs`` go to :class:`FPNSuppression` (``dim``, ``adaptive``, ``low``, ``high``, ``floor``,
+    ``border``, ``trainable``).
+    """
+    design, taps, meta = _design(order, rho, notches, band_weights, compensate_delay)
+    module = FPNSuppression(taps, **kwargs, **meta)
+    module.filter.design = design
+    return module
+
+
+def suppression_from_data(
+    frames: torch.Tensor,
+    amplitudes: torch.Tensor | None = None,
+    order: int = K.DEFAULT_ORDER,
+    rho: float | None = None,
+    min_confidence: float = 0.5,
+    estimate_kwargs: dict | None = None,
+    **kwargs,
+) -> FPNSuppression:
+    """Design notches for the stripes :func:`~tof_fpn_torch.analysis.estimate_stripes` finds.
+
+    Components with ``confidence >= min_confidence`` are kept; their frequencies become the
+    notches (within 1e-3 rad of pi snapped to pi), the orientations found set ``dim`` (both
+    orientations share one notch set). ``rho`` defaults to ``min(DEFAULT_RHO, 0.9 max_rho)``.
+    The estimate is kept in ``module.estimate``.
+
+    Raises:
+        ValueError: bad input, or no stripe found (the message lists the best candidates).
+    """
+    est: StripeEstimate = estimate_stripes(frames, amplitudes, **(estimate_kwargs or {}))
+    comps = [c for c in est.components if c.confidence >= min_confidence]
+    if not comps:
+        raise ValueError(
+            "no periodic stripes found with confidence >= "
+            f"{min_confidence} (components: {list(est.components)}); nothing to notch"
+        )
+    freqs = sorted({math.pi if abs(c.frequency - math.pi) < 1e-3 else c.frequency for c in comps})
+    merged: list[float] = []
+    for f in freqs:  # one notch for peaks closer than 0.02 rad
+        if merged and f - merged[-1] < 0.02:
+            continue
+        merged.append(f)
+    dims = sorted({c.dim for c in comps})
+    if rho is None:
+        rho = min(K.DEFAULT_RHO, 0.9 * max_rho(merged))
+    kwargs.setdefault("dim", tuple(dims) if len(dims) > 1 else dims[0])
+    module = suppression_from_design(order, rho, notches=tuple(merged), **kwargs)
+    module.estimate = est
+    return module

@@ -1,0 +1,104 @@
+"""The paper's numbers and the package defaults, each written once (standard library only).
+
+Georgiev, Bregovic, Gotchev, "Fixed-pattern noise suppression in low-sensing environment of
+Time-of-Flight devices", IEEE SAS 2015 (DOI 10.1109/SAS.2015.7133633). Every module reads these
+names; ``tests/test_layout.py`` fails if one of the values is written as a literal anywhere else in
+the package. TorchScript reads them as module attributes (``constants.D_MAX``), which it folds into
+constants; it cannot read bare module-level globals.
+"""
+
+from __future__ import annotations
+
+import math
+
+# --- camera (PMD CamCube 2.0, Sec. I and IV) ---------------------------------------------------
+#: Modulation frequency of the paper's camera, Hz.
+CAMCUBE_MODULATION_FREQUENCY_HZ: float = 20e6
+#: Side of the CamCube 2.0 frame, pixels (204 x 204).
+CAMCUBE_SIZE: int = 204
+#: Speed of light in vacuum, m/s.
+SPEED_OF_LIGHT: float = 299_792_458.0
+#: Refractive index of dry air (the paper's ``c_L`` is the speed of light in air).
+AIR_REFRACTIVE_INDEX: float = 1.000293
+#: ``c_L``, m/s.
+SPEED_OF_LIGHT_AIR: float = SPEED_OF_LIGHT / AIR_REFRACTIVE_INDEX
+
+# --- metrics (eq. 9, Sec. II-A) ----------------------------------------------------------------
+#: Peak depth of eq. (9), metres: the 20 MHz unambiguous range ``c_L / 2f = 7.49 m``, rounded.
+D_MAX: float = 7.5
+#: Amplitude below which a pixel is "low-sensing" (Sec. II-A, Table II's LOW), CamCube units.
+LOW_SENSING_THRESHOLD: float = 300.0
+
+# --- FPN frequencies and the default notch filter (Sec. III, Table I) --------------------------
+#: Spatial frequencies of the CamCube fixed-pattern noise, radians per sample.
+FPN_FREQUENCIES: tuple[float, float] = (2.0 * math.pi / 3.0, math.pi)
+#: Default notches of the design: the FPN frequencies, ascending.
+DEFAULT_NOTCHES: tuple[float, ...] = FPN_FREQUENCIES
+#: Table I's best adaptive filter ``{order, rho}``: the package's default stage.
+DEFAULT_ORDER: int = 20
+DEFAULT_RHO: float = 0.14
+
+# --- amplitude-gated fusion (eq. 11), CamCube amplitude units ----------------------------------
+#: ``delta_A = 1`` up to this amplitude.
+FUSION_LOW: float = 70.0
+#: ``delta_A = FUSION_FLOOR`` from this amplitude on.
+FUSION_HIGH: float = 350.0
+#: Weight of the filtered depth for strong signals.
+FUSION_FLOOR: float = 0.2
+
+# --- the depth-domain FPN model (eq. 10, reconstructed; Sec. IV-B) -----------------------------
+FPN_ALPHA: float = -3.966
+FPN_BETA: float = 0.012
+FPN_GAMMA: float = 5.25
+
+# --- robust noise estimation -------------------------------------------------------------------
+#: Daubechies-2 decomposition high-pass filter (``pywt.Wavelet('db2').dec_hi``).
+DB2_DEC_HI: tuple[float, float, float, float] = (
+    -0.48296291314453416,
+    0.8365163037378079,
+    -0.2241438680420134,
+    -0.12940952255126037,
+)
+#: ``1 / Phi^-1(3/4)``: median absolute value of N(0, 1) to its standard deviation.
+MAD_TO_SIGMA: float = 1.482602218505602
+#: In NLM's noise map ``k / A`` a valid pixel's amplitude counts as at least this fraction of its
+#: image's median amplitude (``A = 0`` is valid but has no finite noise level).
+NLM_AMPLITUDE_FLOOR: float = 0.01
+#: ``log2(e)``: weights computed with ``exp2`` fold this factor into their argument.
+LOG2_E: float = 1.4426950408889634
+
+# --- the paper's reported results (Table I) and its filter family (Fig. 5, Fig. 9) -------------
+#: Table I's filters, in the paper's row order.
+TABLE1_FILTERS: tuple[tuple[int, float], ...] = (
+    (20, 0.14),
+    (28, 0.13),
+    (40, 0.09),
+    (17, 0.14),
+    (31, 0.14),
+    (41, 0.12),
+)
+#: Table I: case -> {(order, rho): (NLM not filtered, NLM filtered, NLM filtered + adaptive)} dB.
+PAPER_TABLE1: dict[str, dict[tuple[int, float], tuple[float, float, float]]] = {
+    "fpn": {
+        (20, 0.14): (25.28, 30.20, 31.45),
+        (28, 0.13): (25.28, 30.32, 31.33),
+        (40, 0.09): (25.28, 30.04, 31.10),
+        (17, 0.14): (25.28, 28.35, 30.44),
+        (31, 0.14): (25.28, 28.29, 30.43),
+        (41, 0.12): (25.28, 28.18, 30.26),
+    },
+    "fpn+noise": {
+        (20, 0.14): (24.79, 29.51, 30.58),
+        (28, 0.13): (24.79, 29.56, 30.48),
+        (40, 0.09): (24.79, 29.28, 30.24),
+        (17, 0.14): (24.79, 27.80, 29.62),
+        (31, 0.14): (24.79, 27.74, 29.60),
+        (41, 0.12): (24.79, 27.62, 29.48),
+    },
+}
+#: Table I header: input PSNR (before NLM) of each case.
+PAPER_INPUT_PSNR: dict[str, float] = {"fpn": 24.51, "fpn+noise": 21.26}
+#: Fig. 5 / Fig. 9 filter family.
+FIG9_ODD_ORDERS: tuple[int, ...] = (5, 9, 17, 21, 31, 41, 53)
+FIG9_EVEN_ORDERS: tuple[int, ...] = (8, 12, 20, 28, 40, 52)
+FIG9_RHOS: tuple[float, ...] = tuple(round(0.02 + 0.01 * i, 2) for i in range(15))  # 0.02..0.16

@@ -1,0 +1,29 @@
+"""Run-time FPN stage: torch (and kornia) only, TorchScript / ONNX exportable, CPU and CUDA.
+
+May import: torch, kornia, the standard library, :mod:`tof_fpn_torch.constants`. Must not import
+the offline design, the analysis, the simulator, NumPy, SciPy or matplotlib (``tests/test_layout.py``
+checks this). The modules take filter taps; designing them is the job of :mod:`tof_fpn_torch.design`
+and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, never the reverse.
+
+- :mod:`.validity`: the one validity rule (:func:`valid_mask`).
+- :mod:`.fir`: 1-D FIR kernels (polyphase / block-Toeplitz GEMMs, borders).
+- :mod:`.fpn_filter`: :func:`fpn_filter`, :class:`FPNFilter`.
+- :mod:`.fusion`: :func:`amplitude_fusion`, :class:`AmplitudeFusion` (eq. 11).
+- :mod:`.suppression`: :class:`FPNSuppression` (filter + fusion).
+"""
+
+from .fpn_filter import FPNFilter, fpn_filter
+from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
+from .suppression import FPNSuppression
+from .validity import all_valid, valid_mask
+
+__all__ = [
+    "AmplitudeFusion",
+    "FPNFilter",
+    "FPNSuppression",
+    "all_valid",
+    "amplitude_fusion",
+    "amplitude_weight",
+    "fpn_filter",
+    "valid_mask",
+]

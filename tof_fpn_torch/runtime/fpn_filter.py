@@ -1,0 +1,324 @@
+r"""FPN notch filter: fixed 1-D FIR taps along the width and/or height of (B, C, H, W) depth.
+
+Applies the filters of Georgiev, Bregovic, Gotchev, "Fixed-pattern noise suppression in
+low-sensing environment of Time-of-Flight devices", IEEE SAS 2015, Sec. III (designed offline by
+:mod:`tof_fpn_torch.design`; this module only needs their taps). ``dim=-1`` filters along the width
+and removes *column* stripes (a pattern that changes from column to column), ``dim=-2`` removes row
+stripes. Centring as ``scipy.ndimage.convolve1d``; even-length taps (odd order) put the output half a
+sample off the input grid (:attr:`FPNFilter.delay`).
+
+Invalid pixels (:func:`~tof_fpn_torch.runtime.valid_mask`) are first filled along the filtering axis
+by normalized convolution with a triangular window of half-width ``L // 2 + 1``
+(``sum w v x / sum w v`` over valid ``v``; the line mean where a gap is wider, the image mean for an
+empty line), the filter runs on the filled image, and the invalid pixels are written back unchanged.
+So no invalid value reaches a valid output, nothing is smeared, and invalid stays invalid.
+"""
+
+# no `from __future__ import annotations`: TorchScript reads the class-level attribute types below
+# as objects, not strings
+import math
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from ._checks import check_image, check_taps, normalize_dims
+from .fir import BORDER_MODES, fir_last, fir_operators
+from .validity import all_valid, valid_mask
+
+__all__ = ["FPNFilter", "fill_window", "fpn_filter"]
+
+
+def fill_window(length: int) -> torch.Tensor:
+    """Triangular window (float64) of half-width ``length // 2 + 1`` used to fill invalid pixels."""
+    half = length // 2
+    return 1.0 - torch.arange(-half - 1, half + 2, dtype=torch.float64).abs() / (half + 2.0)
+
+
+def _tracing() -> bool:
+    """True while ``torch.jit.trace``, ``torch.export`` / ONNX or ``torch.compile`` trace the call:
+    then the branch-free, out-of-place path is taken (no data-dependent shortcuts)."""
+    if torch.jit.is_scripting():
+        return False
+    return torch.jit.is_tracing() or torch.compiler.is_compiling() or torch.onnx.is_in_onnx_export()
+
+
+def _along(
+    x: torch.Tensor, taps: torch.Tensor, d: int, border: str, ops: list[torch.Tensor], fast: bool
+) -> torch.Tensor:
+    if d == -1:
+        return fir_last(x, taps, border, ops, fast)
+    y = fir_last(x.transpose(-1, -2).contiguous(), taps, border, ops, fast)
+    return y.transpose(-1, -2).contiguous()
+
+
+def _fill_dense(
+    x: torch.Tensor,
+    valid: torch.Tensor,
+    window: torch.Tensor,
+    d: int,
+    ops: list[torch.Tensor],
+    fast: bool,
+) -> torch.Tensor:
+    """Fill invalid pixels along ``d`` by normalized convolution over the whole image (branch-free:
+    the traced / exported path, and the eager path when invalid pixels are many)."""
+    v = valid.to(x.dtype)
+    x0 = torch.where(valid, x, torch.zeros_like(x))
+    num = _along(x0, window, d, "zeros", ops, fast)
+    den = _along(v, window, d, "zeros", ops, fast)
+    thr = 0.5 / (window.shape[0] // 2 + 1.0)  # half the smallest window weight
+    local = num / torch.where(den > thr, den, torch.ones_like(den))
+    filled = torch.where(den > thr, local, _line_means(x0, v, d).expand_as(x))
+    return torch.where(valid, x, filled)
+
+
+def _line_means(x0: torch.Tensor, v: torch.Tensor, d: int) -> torch.Tensor:
+    """Mean of the valid values of every line along ``d`` (the image mean for an empty line)."""
+    count = v.sum(d, keepdim=True)
+    line = x0.sum(d, keepdim=True) / count.clamp_min(1.0)
+    image = x0.sum((-2, -1), keepdim=True) / v.sum((-2, -1), keepdim=True).clamp_min(1.0)
+    return torch.where(count > 0, line, image.expand_as(line))
+
+
+def _fill_sparse(
+    x: torch.Tensor, valid: torch.Tensor, inv: torch.Tensor, window: torch.Tensor, d: int
+) -> torch.Tensor:
+    """The fill of :func:`_fill_dense` evaluated at the invalid pixels ``inv`` (flat indices)
+    only: each line is zero-padded once, and the window around every hole is a row of an unfold
+    view, gathered and weighted by one matrix-vector product (no full-image convolution; real
+    captures have a few % of holes, and this keeps their cost near a clean frame's)."""
+    z = x.masked_fill(~valid, 0.0)
+    v = valid.to(x.dtype)
+    h, w = x.shape[-2], x.shape[-1]
+    if d == -1:
+        z2, v2, n = z.reshape(-1, w), v.reshape(-1, w), w
+        row, col = torch.div(inv, w, rounding_mode="floor"), inv % w
+    else:
+        z2, v2, n = z.transpose(-1, -2).reshape(-1, h), v.transpose(-1, -2).reshape(-1, h), h
+        plane = torch.div(inv, h * w, rounding_mode="floor")
+        row, col = plane * w + inv % w, torch.div(inv, w, rounding_mode="floor") % h
+    half = window.shape[0] // 2
+    win = window.to(x.dtype)
+    num = F.pad(z2, (half, half)).unfold(1, 2 * half + 1, 1)[row, col].matmul(win)
+    den = F.pad(v2, (half, half)).unfold(1, 2 * half + 1, 1)[row, col].matmul(win)
+    thr = 0.5 / (half + 1.0)
+    value = num / torch.where(den > thr, den, torch.ones_like(den))
+    far = den <= thr
+    if bool(far.any()):  # a gap wider than the window: the line mean
+        means = _line_means(z, v, d).expand_as(x).reshape(-1)
+        value = torch.where(far, means[inv], value)
+    return z.view(-1).index_copy_(0, inv, value).view(x.shape)
+
+
+def _fpn_filter(
+    x: torch.Tensor,
+    mask: torch.Tensor | None,
+    taps: torch.Tensor,
+    dims: list[int],
+    border: str,
+    window: torch.Tensor,
+    taps_ops: list[torch.Tensor],
+    window_ops: list[torch.Tensor],
+) -> torch.Tensor:
+    """The filter without argument checks (shared by :func:`fpn_filter` and :class:`FPNFilter`)."""
+    if x.numel() == 0:
+        return x.clone()
+    out_dtype = x.dtype
+    work = x.float() if x.dtype == torch.float16 or x.dtype == torch.bfloat16 else x
+    tracing = _tracing()
+    fast = not tracing and not (torch.is_grad_enabled() and (x.requires_grad or taps.requires_grad))
+    if tracing:  # branch-free: the validity mask, the fill and the write-back always run
+        valid = valid_mask(work, mask=mask)
+        y = _fill_dense(work, valid, window, dims[-1], window_ops, fast)
+        for d in dims:
+            y = _along(y, taps, d, border, taps_ops, fast)
+        return torch.where(valid, y, work).to(out_dtype)
+    if mask is None and all_valid(work):  # one integer min/max: the usual clean frame
+        y = work
+        for d in dims:
+            y = _along(y, taps, d, border, taps_ops, fast)
+        return y.to(out_dtype)
+    work = work.contiguous()
+    valid = valid_mask(work, mask=mask)
+    inv = torch.nonzero(~valid.reshape(-1)).squeeze(1)
+    if inv.numel() * window.shape[0] > work.numel():  # many holes: two full convolutions
+        y = _fill_dense(work, valid, window, dims[-1], window_ops, fast)
+    elif inv.numel() > 0:  # a few holes: a window gathered around each
+        y = _fill_sparse(work, valid, inv, window.to(work.device), dims[-1])
+    else:
+        y = work
+    for d in dims:
+        y = _along(y, taps, d, border, taps_ops, fast)
+    if inv.numel() > 0:  # invalid pixels get their input values back
+        back = work.reshape(-1)[inv]
+        if fast:  # y is a fresh buffer of ours: no copy
+            y.view(-1).index_copy_(0, inv, back)
+        else:
+            y = y.contiguous().reshape(-1).index_copy(0, inv, back).view(work.shape)
+    return y.to(out_dtype)
+
+
+def fpn_filter(
+    x: torch.Tensor,
+    taps: torch.Tensor,
+    dim: int | tuple[int, ...] = -1,
+    border: str = "reflect",
+    mask: torch.Tensor | None = None,
+) -> torch.Tensor:
+    r"""Apply 1-D FIR ``taps`` along ``dim`` of a (B, C, H, W) depth tensor, invalid pixels kept.
+
+    The functional form of :class:`FPNFilter`, with the same checks and the same invalid-pixel
+    handling; it builds the small fast-path matrices on every call (the module keeps them).
+
+    Args:
+        x: (B, C, H, W) floating depth; invalid pixels (NaN, +-inf, <= 0) are returned unchanged.
+        taps: (L,) filter taps ``h[0..L-1]``, finite.
+        dim: ``-1`` (along the width: column stripes), ``-2`` (rows) or ``(-2, -1)``.
+        border: ``"reflect"`` (``dcb|abcd|cba``), ``"replicate"``, ``"circular"`` or ``"zeros"``.
+        mask: optional (B, C, H, W) bool, False marks more invalid pixels.
+
+    Returns:
+        (B, C, H, W), dtype and device of ``x`` (float16 / bfloat16 computed in float32).
+
+    Example:
+        >>> y = fpn_filter(torch.full((1, 1, 4, 9), 2.0), torch.tensor([0.25, 0.5, 0.25]))
+        >>> y[0, 0, 0]
+        tensor([2., 2., 2., 2., 2., 2., 2., 2., 2.])
+    """
+    check_image(x, "x")
+    taps = torch.as_tensor(taps)
+    check_taps(taps)
+    if border not in BORDER_MODES:
+        raise ValueError(f"border must be one of {BORDER_MODES}, got {border!r}")
+    dims = list(normalize_dims(dim))
+    if mask is not None and mask.shape != x.shape:
+        raise ValueError(f"mask must have the shape of x {list(x.shape)}, got {list(mask.shape)}")
+    window = fill_window(taps.shape[0]).to(x.device)
+    return _fpn_filter(x, mask, taps.to(x.device), dims, border, window, [], [])
+
+
+class FPNFilter(nn.Module):
+    r"""Fixed 1-D FIR notch filter along the width and/or height of (B, C, H, W) depth.
+
+    A thin holder of buffers for :func:`fpn_filter`: the taps (float64, or a parameter when
+    ``trainable``), the fill window, and the fast-path matrices built from them when the taps are
+    set (:meth:`set_taps`; rebuilt in eager mode when the taps change in place, e.g. by an optimiser).
+    What the design was (``order``, ``rho``, ``notches``) is kept as attributes, so TorchScript
+    archives carry it and :func:`tof_fpn_torch.export.export_onnx` writes it into the ONNX metadata.
+    Build one from a design with :func:`tof_fpn_torch.build.filter_from_design`.
+
+    Args:
+        taps: ``h[0..L-1]`` (1-D, finite), e.g. ``design_fpn(20, 0.14).taps``.
+        dim: ``-1`` filters along the width (removes column stripes), ``-2`` along the height
+            (row stripes), ``(-2, -1)`` both.
+        border: ``"reflect"`` (default), ``"replicate"``, ``"circular"`` or ``"zeros"``. Any width
+            works, also narrower than the filter.
+        trainable: make the taps an ``nn.Parameter``.
+        order, rho, notches: the design the taps come from (metadata; ``order`` defaults to
+            ``L - 1``, ``rho`` to NaN = unknown, ``notches`` to none).
+        compensated: the taps include a half-sample delay compensator (metadata).
+
+    Shape:
+        - Input: (B, C, H, W) float, optional ``mask`` (B, C, H, W) bool (True = valid).
+        - Output: (B, C, H, W), same dtype and device.
+
+    Example:
+        >>> f = FPNFilter(torch.tensor([0.25, 0.5, 0.25]))
+        >>> f(torch.rand(2, 1, 48, 64) + 1.0).shape
+        torch.Size([2, 1, 48, 64])
+    """
+
+    __jit_ignored_attributes__ = ["design"]
+    # attribute types for TorchScript (an empty list would otherwise be read as List[Tensor])
+    order: int
+    rho: float
+    notches: list[float]
+    dims: list[int]
+    border: str
+    compensated: bool
+
+    def __init__(
+        self,
+        taps,
+        dim: int | tuple[int, ...] = -1,
+        border: str = "reflect",
+        trainable: bool = False,
+        *,
+        order: int | None = None,
+        rho: float | None = None,
+        notches: tuple[float, ...] = (),
+        compensated: bool = False,
+    ) -> None:
+        super().__init__()
+        t = torch.as_tensor(taps, dtype=torch.float64).detach().clone()
+        check_taps(t)
+        if border not in BORDER_MODES:
+            raise ValueError(f"border must be one of {BORDER_MODES}, got {border!r}")
+        self.dims = list(normalize_dims(dim))
+        self.border = border
+        self.order = int(t.numel() - 1 if order is None else order)
+        self.rho = math.nan if rho is None else float(rho)
+        self.notches = [float(w) for w in notches]
+        self.compensated = bool(compensated)
+        self.design = None  # the offline design object, when a builder made this module
+        if trainable:
+            self.taps = nn.Parameter(t)
+        else:
+            self.register_buffer("taps", t)
+        self.register_buffer("window", fill_window(t.numel()))
+        for i, op in enumerate(fir_operators(self.window, "zeros")):
+            self.register_buffer(f"_window_op{i}", op, persistent=False)
+        self._ops_version = -1
+        self._build_operators()
+
+    @torch.jit.unused
+    def _build_operators(self) -> None:
+        for i, op in enumerate(fir_operators(self.taps, self.border)):
+            self.register_buffer(f"_taps_op{i}", op.to(self.taps.device), persistent=False)
+        self._ops_version = self.taps._version
+
+    @torch.jit.unused
+    def _refresh_operators(self) -> None:
+        """Rebuild the matrices when the taps changed in place (optimiser step, load_state_dict):
+        a tensor's version counter is a host integer, so this costs no device sync."""
+        if self._ops_version != self.taps._version:
+            self._build_operators()
+
+    @torch.jit.unused
+    def set_taps(self, taps) -> None:
+        """Replace the taps (same length) and rebuild the fast-path matrices."""
+        t = torch.as_tensor(taps, dtype=torch.float64)
+        check_taps(t)
+        if t.shape != self.taps.shape:
+            raise ValueError(
+                f"taps must keep their length {self.taps.numel()}, got shape {list(t.shape)}"
+            )
+        with torch.no_grad():
+            self.taps.copy_(t)
+        self._build_operators()
+
+    @property
+    def delay(self) -> float:
+        """Residual shift of the output in samples: output sample ``n`` estimates input position
+        ``n + delay`` (0.5 for even-length taps, else 0)."""
+        return 0.5 if self.taps.numel() % 2 == 0 else 0.0
+
+    def extra_repr(self) -> str:
+        return (
+            f"taps={self.taps.numel()}, order={self.order}, rho={self.rho}, dim={tuple(self.dims)}, "
+            f"border={self.border!r}, delay={self.delay}, compensated={self.compensated}"
+        )
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        check_image(x, "x")
+        if mask is not None and mask.shape != x.shape:
+            raise ValueError(
+                f"mask must have the shape of x {list(x.shape)}, got {list(mask.shape)}"
+            )
+        if not torch.jit.is_scripting():
+            self._refresh_operators()
+        taps_ops = [self._taps_op0, self._taps_op1, self._taps_op2, self._taps_op3]
+        window_ops = [self._window_op0, self._window_op1, self._window_op2, self._window_op3]
+        return _fpn_filter(
+            x, mask, self.taps, self.dims, self.border, self.window, taps_ops, window_ops
+        )
