@@ -151,7 +151,7 @@ def _fpn_filter(
         y = _along(y, taps, d, border, taps_ops, fast)
     if inv.numel() > 0:  # invalid pixels get their input values back
         back = work.reshape(-1)[inv]
-        if fast:  # y is a fresh buffer of ours: no copy
+        if fast and y.is_contiguous():  # y is a fresh buffer of ours (the FIR output): no copy
             y.view(-1).index_copy_(0, inv, back)
         else:
             y = y.contiguous().reshape(-1).index_copy(0, inv, back).view(work.shape)
