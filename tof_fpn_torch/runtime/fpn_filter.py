@@ -91,10 +91,10 @@ def _fill_sparse(
     v = valid.to(x.dtype)
     h, w = x.shape[-2], x.shape[-1]
     if d == -1:
-        z2, v2, n = z.reshape(-1, w), v.reshape(-1, w), w
+        z2, v2 = z.reshape(-1, w), v.reshape(-1, w)
         row, col = torch.div(inv, w, rounding_mode="floor"), inv % w
     else:
-        z2, v2, n = z.transpose(-1, -2).reshape(-1, h), v.transpose(-1, -2).reshape(-1, h), h
+        z2, v2 = z.transpose(-1, -2).reshape(-1, h), v.transpose(-1, -2).reshape(-1, h)
         plane = torch.div(inv, h * w, rounding_mode="floor")
         row, col = plane * w + inv % w, torch.div(inv, w, rounding_mode="floor") % h
     half = window.shape[0] // 2
