@@ -15,12 +15,13 @@ import torch or any other layer of the package: it produces taps (NumPy arrays) 
 from ..constants import DEFAULT_NOTCHES
 from .bands import fpn_bands, max_rho
 from .delay import compensate_half_sample, half_sample_taps
-from .notch import RIPPLE_FLOOR, FPNDesign, design_fpn, design_fpn_filter
+from .notch import MAX_ORDER, RIPPLE_FLOOR, FPNDesign, design_fpn, design_fpn_filter
 from .remez import RemezConvergenceError, remez_linear_phase
 from .response import fixed_zero_response, fixed_zero_taps, passband_ripple, zero_phase_response
 
 __all__ = [
     "DEFAULT_NOTCHES",
+    "MAX_ORDER",
     "RIPPLE_FLOOR",
     "FPNDesign",
     "RemezConvergenceError",
