@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from . import constants as K
 from .runtime import FPNFilter
 
 __all__ = ["MIN_OPSET", "export_onnx", "export_torchscript", "filter_metadata"]
@@ -104,7 +105,9 @@ def export_onnx(
     if example_inputs is None:
         gen = torch.Generator().manual_seed(0)
         example_inputs = tuple(
-            torch.rand(2, 1, 64, 80, generator=gen) * (300.0 if n == "amplitude" else 1.0) + 0.5
+            torch.rand(2, 1, 64, 80, generator=gen)
+            * (K.LOW_SENSING_THRESHOLD if n == "amplitude" else 1.0)
+            + 0.5
             for n in names
         )
     if len(example_inputs) != len(names):
