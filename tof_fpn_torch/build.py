@@ -24,11 +24,29 @@ from .analysis.stripes import StripeEstimate, estimate_stripes
 from .design import compensate_half_sample, design_fpn, max_rho
 from .runtime import FPNFilter, FPNSuppression
 
-__all__ = ["filter_from_design", "suppression_from_data", "suppression_from_design"]
+__all__ = [
+    "MAX_RIPPLE_DB",
+    "filter_from_design",
+    "suppression_from_data",
+    "suppression_from_design",
+]
 
 
-def _design(order, rho, notches, band_weights, compensate_delay):
-    design = design_fpn(order, rho, notches=notches, band_weights=band_weights)
+#: The builders refuse designs whose passband ripple is worse than this (dB): such a "notch filter"
+#: changes the scene more than it removes stripes (e.g. 0 dB ripple with H(0) = 2 doubles depth).
+MAX_RIPPLE_DB = -20.0
+
+
+def _design(order, rho, notches, band_weights, compensate_delay, unit_dc, max_ripple_db):
+    design = design_fpn(order, rho, notches=notches, band_weights=band_weights, unit_dc=unit_dc)
+    if max_ripple_db is not None and not design.ripple_db <= max_ripple_db:
+        raise ValueError(
+            f"the design {{order {order}, rho {rho:g}}} for notches "
+            f"{[round(w, 4) for w in design.notches]} has a passband ripple of "
+            f"{design.ripple_db:.1f} dB (DC gain {design.dc_gain:.3f}); the stage needs "
+            f"<= {max_ripple_db:g} dB: use a higher order or a larger rho (max_ripple_db=None "
+            "accepts it anyway)"
+        )
     taps = design.taps
     compensated = bool(compensate_delay) and taps.size % 2 == 0
     if compensated:
@@ -52,16 +70,22 @@ def filter_from_design(
     notches: Sequence[float] = K.DEFAULT_NOTCHES,
     band_weights: Sequence[float] | None = None,
     compensate_delay: bool = False,
+    unit_dc: bool = True,
+    max_ripple_db: float | None = MAX_RIPPLE_DB,
     **kwargs,
 ) -> FPNFilter:
     """Design taps with :func:`tof_fpn_torch.design.design_fpn` and build an :class:`FPNFilter`.
 
     ``compensate_delay`` convolves the taps of an odd order with a half-sample interpolator
     (:func:`tof_fpn_torch.design.compensate_half_sample`), so the output stays on the input grid.
-    ``kwargs`` go to :class:`FPNFilter` (``dim``, ``border``, ``trainable``). The design is kept in
+    ``unit_dc`` constrains ``H(0) = 1`` (default; the paper's design with False). A design whose
+    ripple is worse than ``max_ripple_db`` is refused with a ``ValueError``. ``kwargs`` go to
+    :class:`FPNFilter` (``dim``, ``border``, ``trainable``). The design is kept in
     ``module.design``.
     """
-    design, taps, meta = _design(order, rho, notches, band_weights, compensate_delay)
+    design, taps, meta = _design(
+        order, rho, notches, band_weights, compensate_delay, unit_dc, max_ripple_db
+    )
     module = FPNFilter(taps, **kwargs, **meta)
     module.design = design
     return module
@@ -74,15 +98,19 @@ def suppression_from_design(
     notches: Sequence[float] = K.DEFAULT_NOTCHES,
     band_weights: Sequence[float] | None = None,
     compensate_delay: bool = False,
+    unit_dc: bool = True,
+    max_ripple_db: float | None = MAX_RIPPLE_DB,
     **kwargs,
 ) -> FPNSuppression:
     """Design taps and build an :class:`FPNSuppression` (filter + eq. 11 fusion).
 
     Defaults: Table I's best adaptive filter ``{20, 0.14}`` with notches at ``2pi/3`` and ``pi``.
     ``kwargs`` go to :class:`FPNSuppression` (``dim``, ``adaptive``, ``low``, ``high``, ``floor``,
-    ``border``, ``trainable``).
+    ``border``, ``trainable``); ``unit_dc`` and ``max_ripple_db`` as in :func:`filter_from_design`.
     """
-    design, taps, meta = _design(order, rho, notches, band_weights, compensate_delay)
+    design, taps, meta = _design(
+        order, rho, notches, band_weights, compensate_delay, unit_dc, max_ripple_db
+    )
     module = FPNSuppression(taps, **kwargs, **meta)
     module.filter.design = design
     return module

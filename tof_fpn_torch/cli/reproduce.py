@@ -53,11 +53,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="table1: compensate the half-sample delay of odd orders",
     )
-    p.add_argument(
-        "--dc-normalize",
-        action="store_true",
-        help="table1: scale the taps to DC gain 1 (not in the paper)",
-    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
         "--threads",
@@ -90,7 +85,6 @@ def run(args: argparse.Namespace) -> int:
             size,
             nlm=nlm,
             compensate_delay=args.compensate_delay,
-            dc_normalize=args.dc_normalize,
             progress=progress,
         )
         paths = E.write_table1(result, args.out)

@@ -4,7 +4,8 @@ May import: NumPy, SciPy, matplotlib (:mod:`.plot` only), :mod:`tof_fpn_torch.co
 import torch or any other layer of the package: it produces taps (NumPy arrays) that
 :mod:`tof_fpn_torch.build` hands to the run-time modules.
 
-- :mod:`.remez`: the generalized Remez exchange (frequency-dependent weight and desired response).
+- :mod:`.remez`: the generalized Remez exchange (frequency-dependent weight and desired response);
+  :mod:`.linear_phase`: linear-phase filters from it, optionally with an exact DC gain.
 - :mod:`.bands`: notch sets, passbands (eq. 8) and the allowed ``rho``.
 - :mod:`.response`: fixed zeros ``A(z)``, zero-phase response, passband ripple.
 - :mod:`.notch`: :func:`design_fpn` (Sec. III of Georgiev et al., IEEE SAS 2015).
@@ -15,8 +16,9 @@ import torch or any other layer of the package: it produces taps (NumPy arrays) 
 from ..constants import DEFAULT_NOTCHES
 from .bands import fpn_bands, max_rho
 from .delay import compensate_half_sample, half_sample_taps
+from .linear_phase import remez_linear_phase
 from .notch import MAX_ORDER, RIPPLE_FLOOR, FPNDesign, design_fpn, design_fpn_filter
-from .remez import RemezConvergenceError, remez_linear_phase
+from .remez import RemezConvergenceError
 from .response import fixed_zero_response, fixed_zero_taps, passband_ripple, zero_phase_response
 
 __all__ = [

@@ -6,7 +6,7 @@ low-sensing environment of Time-of-Flight devices", IEEE SAS 2015 (DOI 10.1109/S
 The filter is ``H(z) = A(z) G(z)`` (eq. 4). ``A(z)`` holds fixed zeros at the FPN frequencies: for
 each notch ``w0`` in ``(0, pi)`` the pair ``1 - 2 cos(w0) z^-1 + z^-2`` (``A1 = 1 + z^-1 + z^-2`` for
 ``w0 = 2pi/3``), and for ``w0 = pi`` the single zero ``A2 = 1 + z^-1``. ``G`` is a symmetric FIR of
-order ``N_G = N - deg A`` designed by a Remez exchange (:mod:`tof_fpn_torch.remez`).
+order ``N_G = N - deg A`` designed by a Remez exchange (:mod:`tof_fpn_torch.design.remez`).
 
 Derivation of the weight and desired response (the seed's eq. 7 is garbled)
 -----------------------------------------------------------------------------
@@ -38,6 +38,16 @@ its own zero at ``pi`` (a double zero of ``H`` there, the paper's "two zeros at 
 response is ``cos(w/2) P(w)`` and the Remez runs on ``P`` with ``W cos(w/2)`` and ``D / cos(w/2)``.
 For odd ``N`` the taps have even length and the filter delays by ``N / 2``, a half-sample
 (:attr:`FPNDesign.half_sample_delay`).
+
+Unit DC gain (default; not in the paper)
+----------------------------------------
+The paper's minimax design puts a ripple extremum at ``w = 0``, so depth comes out scaled by
+``H(0) = 1 +- delta`` (0.967 for ``{20, 0.14}``: a 3.3 % depth bias wherever the filtered depth is
+used). ``unit_dc=True`` adds the exact constraint ``H(0) = 1``, i.e. ``G(0) = 1 / A(0)``, and
+solves the constrained minimax problem (:mod:`tof_fpn_torch.design.linear_phase`: ``G = c + (1 -
+cos w) Q``, an unconstrained exchange over ``Q``); its optimality is checked against the linear
+programme with the same equality in ``tests/test_design_dc.py``. ``unit_dc=False`` is the paper's
+unconstrained design (Table I's paper-exact column).
 """
 
 from __future__ import annotations
@@ -50,7 +60,8 @@ import numpy as np
 
 from ..constants import DEFAULT_NOTCHES
 from .bands import check_notches, fpn_bands
-from .remez import RemezConvergenceError, remez_linear_phase
+from .linear_phase import remez_linear_phase
+from .remez import RemezConvergenceError
 from .response import fixed_zero_response, fixed_zero_taps, passband_ripple
 
 __all__ = ["MAX_ORDER", "RIPPLE_FLOOR", "FPNDesign", "design_fpn", "design_fpn_filter"]
@@ -89,6 +100,7 @@ class FPNDesign:
         g_order: order of ``G`` actually optimised: ``order - deg A`` unless the full problem was
             below float64 precision (see :data:`RIPPLE_FLOOR`), then lower and zero-padded.
         band_weights: relative ripple weights per band used in the design.
+        unit_dc: designed with the exact constraint ``H(0) = 1`` (:attr:`dc_gain`).
     """
 
     taps: np.ndarray
@@ -102,6 +114,12 @@ class FPNDesign:
     iterations: int
     g_order: int
     band_weights: tuple[float, ...] = field(default=())
+    unit_dc: bool = True
+
+    @property
+    def dc_gain(self) -> float:
+        """``H(0) = sum(taps)``: exactly 1 (to rounding) for ``unit_dc`` designs."""
+        return float(np.sum(self.taps))
 
     @property
     def ripple_db(self) -> float:
@@ -140,6 +158,8 @@ class FPNDesign:
             "notch_depths_db": self.notch_depths_db.tolist(),
             "iterations": self.iterations,
             "g_order": self.g_order,
+            "unit_dc": self.unit_dc,
+            "dc_gain": self.dc_gain,
             "taps": self.taps.tolist(),
         }
 
@@ -150,6 +170,7 @@ def design_fpn(
     *,
     notches: Sequence[float] = DEFAULT_NOTCHES,
     band_weights: Sequence[float] | None = None,
+    unit_dc: bool = True,
     grid_density: int = 8,
     maxiter: int = 100,
 ) -> FPNDesign:
@@ -163,6 +184,8 @@ def design_fpn(
         notches: FPN frequencies in ``(0, pi]`` (radians per sample), default ``(2pi/3, pi)``.
         band_weights: optional relative weight per passband (the paper's "future work"): band ``k``
             gets ripple ``~ delta / band_weights[k]``. Default: equal ripple.
+        unit_dc: constrain ``H(0) = 1`` exactly (default; no depth bias); False gives the
+            paper's unconstrained minimax design, whose ``H(0)`` is off by up to the ripple.
         grid_density: Remez grid points per extremal spacing (default 8; a second stage refines
             the grid around the extremal frequencies).
         maxiter: Remez iterations before :class:`RemezConvergenceError`.
@@ -189,6 +212,8 @@ def design_fpn(
         raise ValueError(f"grid_density must be an integer >= 4, got {grid_density!r}")
     if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
         raise ValueError(f"maxiter must be an integer >= 1, got {maxiter!r}")
+    if not isinstance(unit_dc, (bool, np.bool_)):
+        raise ValueError(f"unit_dc must be a bool, got {unit_dc!r}")
     w = check_notches(notches)
     bands = fpn_bands(rho, w)
     a_taps = fixed_zero_taps(w)
@@ -225,6 +250,7 @@ def design_fpn(
         return np.abs(fixed_zero_response(omega, w)) * band_weight(omega)
 
     errors: list[RemezConvergenceError] = []
+    dc = float(desired(np.zeros(1))[0]) if unit_dc else None  # G(0) = 1 / A(0) <=> H(0) = 1
 
     def attempt(drop: int):
         """Design G of order ``n_g - 2 drop``, zero-padded back to ``n_g``.
@@ -239,6 +265,7 @@ def design_fpn(
                 bands,
                 desired,
                 weight,
+                fixed_dc=dc,
                 grid_density=grid_density,
                 maxiter=maxiter,
             )
@@ -273,6 +300,8 @@ def design_fpn(
     taps, res, band_ripples, drop = found
     band_ripples = band_ripples * bw
     taps = 0.5 * (taps + taps[::-1])  # exactly symmetric (the convolutions round unevenly)
+    if unit_dc:
+        taps = taps / taps.sum()  # H(0) = 1 to the last bit (it is 1 to ~1e-15 already)
     notch_gains = np.abs(np.exp(-1j * np.outer(w, np.arange(taps.size))) @ taps)
     return FPNDesign(
         taps=taps,
@@ -286,6 +315,7 @@ def design_fpn(
         iterations=res.iterations if res is not None else 0,
         g_order=n_g - 2 * drop,
         band_weights=tuple(float(v) for v in bw),
+        unit_dc=bool(unit_dc),
     )
 
 
@@ -319,6 +349,7 @@ def design_fpn_filter(
     *,
     notches: Sequence[float] = DEFAULT_NOTCHES,
     band_weights: Sequence[float] | None = None,
+    unit_dc: bool = True,
     grid_density: int = 8,
     maxiter: int = 100,
 ) -> np.ndarray:
@@ -334,6 +365,7 @@ def design_fpn_filter(
         rho,
         notches=notches,
         band_weights=band_weights,
+        unit_dc=unit_dc,
         grid_density=grid_density,
         maxiter=maxiter,
     ).taps

@@ -186,16 +186,22 @@ def filter_outputs(
     order: int,
     rho: float,
     compensate_delay: bool = False,
-    dc_normalize: bool = False,
+    unit_dc: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, float]:
     """(filtered, filtered + eq. 11 fusion, designed ripple dB) for one (order, rho).
 
-    ``dc_normalize`` divides the output by the DC gain ``H(0) = sum(taps)`` (exactly the filter
-    with taps scaled to ``H(0) = 1``, as the synthetic inputs have no invalid pixels)."""
-    stage = suppression_from_design(order, rho, adaptive=False, compensate_delay=compensate_delay)
+    ``unit_dc=False`` (default) is the paper's unconstrained design; True the package's default
+    with ``H(0) = 1``. Every design of the family is accepted (``max_ripple_db=None``): the
+    paper's sweep includes low orders whose ripple is near 0 dB."""
+    stage = suppression_from_design(
+        order,
+        rho,
+        adaptive=False,
+        compensate_delay=compensate_delay,
+        unit_dc=unit_dc,
+        max_ripple_db=None,
+    )
     filtered = stage.filter(x)
-    if dc_normalize:
-        filtered = filtered / float(stage.filter.taps.double().sum())
     adaptive = stage.fusion(filtered, x, amplitude)
     return filtered, adaptive, float(stage.design.ripple_db)
 

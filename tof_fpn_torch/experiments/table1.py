@@ -44,7 +44,6 @@ def run_table1(
     *,
     best_h_grid: Sequence[float] | None = (0.8, 1.2, 2.0, 3.0, 4.0, 6.0, 8.0),
     compensate_delay: bool = False,
-    dc_normalize: bool = False,
     progress: bool = False,
 ) -> dict:
     """Table I's protocol; returns a JSON-able dict (``rows``: one per case x filter, seed means).
@@ -54,8 +53,9 @@ def run_table1(
     gain depends on using one NLM setting for all columns. ``None`` skips it.
     ``compensate_delay``: odd orders with :class:`~tof_fpn_torch.FPNFilter`'s half-sample
     interpolator (output on the input grid); the paper's filters have no compensation.
-    ``dc_normalize``: scale the taps to DC gain 1 (the minimax design puts a ripple extremum at
-    w = 0, so depth comes out scaled by ``H(0)``, e.g. 0.967 for {20, 0.14}); not in the paper.
+    Every filter runs twice: the paper's unconstrained design (the ``nlm_*`` columns, compared
+    with the paper) and the unit-DC design (``*_unit_dc``): the minimax design puts a ripple
+    extremum at w = 0, so depth comes out scaled by ``H(0)``, e.g. 0.967 for {20, 0.14}.
     """
     nlm = (nlm or NLMSettings()).validate()
     filters = check_filters(filters)
@@ -78,14 +78,15 @@ def run_table1(
 
         it = tqdm(filters, desc="table1 filters", unit="filter")
     for order, rho in it:
-        filtered, adaptive, ripple_db = filter_outputs(
-            x, amp2, order, rho, compensate_delay, dc_normalize
-        )
+        filtered, adaptive, ripple_db = filter_outputs(x, amp2, order, rho, compensate_delay)
+        unit_f, unit_a, _ = filter_outputs(x, amp2, order, rho, compensate_delay, unit_dc=True)
         vals = {
             "filtered_only": split(psnr_list(filtered, gt2)),
             "adaptive_only": split(psnr_list(adaptive, gt2)),
             "nlm_filtered": split(psnr_list(nlm(filtered, sig2), gt2)),
             "nlm_adaptive": split(psnr_list(nlm(adaptive, sig2), gt2)),
+            "nlm_filtered_unit_dc": split(psnr_list(nlm(unit_f, sig2), gt2)),
+            "nlm_adaptive_unit_dc": split(psnr_list(nlm(unit_a, sig2), gt2)),
         }
         for c in CASES:
             paper = K.PAPER_TABLE1[c].get((order, rho))
@@ -100,6 +101,8 @@ def run_table1(
                 "nlm_adaptive": float(np.mean(vals["nlm_adaptive"][c])),
                 "filtered_only": float(np.mean(vals["filtered_only"][c])),
                 "adaptive_only": float(np.mean(vals["adaptive_only"][c])),
+                "nlm_filtered_unit_dc": float(np.mean(vals["nlm_filtered_unit_dc"][c])),
+                "nlm_adaptive_unit_dc": float(np.mean(vals["nlm_adaptive_unit_dc"][c])),
                 "per_seed": {k: v[c] for k, v in vals.items()},
                 "paper": None if paper is None else list(paper),
             }
@@ -127,7 +130,6 @@ def run_table1(
         "nlm": asdict(nlm),
         "nlm_sigma": [float(v) for v in sigma],
         "compensate_delay": bool(compensate_delay),
-        "dc_normalize": bool(dc_normalize),
         "input_psnr": {c: float(np.mean(v)) for c, v in input_psnr.items()},
         "input_psnr_per_seed": input_psnr,
         "nlm_unfiltered_per_seed": nlm_unf,
@@ -155,10 +157,12 @@ def table1_markdown(result: dict) -> str:
         "FPN + noise input of each scene, same for every column and both cases.",
         "",
         "Columns are (NLM on the unfiltered input, NLM after the FPN filter, NLM after filter + "
-        "adaptive fusion eq. 11); 'Input' is the PSNR before any processing. 'paper' is Table I.",
+        "adaptive fusion eq. 11) with the paper's unconstrained filters; 'Input' is the PSNR "
+        "before any processing. 'paper' is Table I. 'unit DC' repeats the filtered columns with "
+        "this package's default design, constrained to H(0) = 1 (no depth bias).",
         "",
     ]
-    variants = [k for k in ("compensate_delay", "dc_normalize") if result.get(k)]
+    variants = [k for k in ("compensate_delay",) if result.get(k)]
     if variants:
         lines += [f"**Variant (not the paper's filters): {', '.join(variants)}.**", ""]
     for c in CASES:
@@ -168,16 +172,19 @@ def table1_markdown(result: dict) -> str:
             f"(paper {K.PAPER_INPUT_PSNR[c]:.2f} dB)",
             "",
             "| {order, rho} | ripple dB | ours (not filt., filt., +adapt.) | paper | "
-            "gain filt. / +adapt. (ours) | gain (paper) | filter only, no NLM |",
-            "|---|---|---|---|---|---|---|",
+            "gain filt. / +adapt. (ours) | gain (paper) | unit DC: filt., +adapt. | "
+            "filter only, no NLM |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         u = rows[0]["nlm_unfiltered"] if rows else float("nan")
         pu = K.PAPER_TABLE1[c][K.TABLE1_FILTERS[0]][0]
         lines.append(
             f"| Input (before NLM) | - | {result['input_psnr'][c]:.2f} | "
-            f"{K.PAPER_INPUT_PSNR[c]:.2f} | - | - | - |"
+            f"{K.PAPER_INPUT_PSNR[c]:.2f} | - | - | - | - |"
         )
-        lines.append(f"| NLM, not filtered | - | ({u:.2f}, -, -) | ({pu:.2f}, -, -) | - | - | - |")
+        lines.append(
+            f"| NLM, not filtered | - | ({u:.2f}, -, -) | ({pu:.2f}, -, -) | - | - | - | - |"
+        )
         for r in rows:
             p = r["paper"]
             ptxt = "-" if p is None else f"({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f})"
@@ -186,6 +193,7 @@ def table1_markdown(result: dict) -> str:
                 f"| {{{r['order']}, {r['rho']:g}}} | {r['ripple_db']:.1f} | "
                 f"({r['nlm_unfiltered']:.2f}, {r['nlm_filtered']:.2f}, {r['nlm_adaptive']:.2f}) | "
                 f"{ptxt} | {r['gain_filtered']:+.2f} / {r['gain_adaptive']:+.2f} | {pg} | "
+                f"{r['nlm_filtered_unit_dc']:.2f}, {r['nlm_adaptive_unit_dc']:.2f} | "
                 f"{r['filtered_only']:.2f} / {r['adaptive_only']:.2f} |"
             )
         lines += [
@@ -236,6 +244,8 @@ TABLE1_CSV_FIELDS = (
     "gain_adaptive",
     "filtered_only",
     "adaptive_only",
+    "nlm_filtered_unit_dc",
+    "nlm_adaptive_unit_dc",
     "paper_input",
     "paper_nlm_unfiltered",
     "paper_nlm_filtered",
