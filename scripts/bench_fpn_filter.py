@@ -77,7 +77,7 @@ def main() -> None:
     xn = x.numpy()
     nbytes = x.numel() * x.element_size()
 
-    f = filter_from_design(args.order, args.rho)
+    f = filter_from_design(args.order, args.rho, compensate_delay=False, allow_shift=True)
     ops = [f._taps_op0, f._taps_op1, f._taps_op2, f._taps_op3]
     holes = x.clone()  # a real capture's case: 1 % invalid pixels take the fill path
     holes.view(-1)[torch.randperm(holes.numel(), generator=gen)[: holes.numel() // 100]] = 0.0

@@ -146,4 +146,5 @@ def test_design_survives_torchscript_and_onnx(tmp_path, cli_onnx):
     meta = {p.key: json.loads(p.value) for p in onnx.load(str(cli_onnx)).metadata_props}
     assert meta["filter.order"] == 41 and meta["filter.rho"] == 0.12
     assert meta["filter.notches"] == pytest.approx([2 * np.pi / 3, np.pi])
-    assert meta["filter.dims"] == [-1] and meta["filter.delay"] == 0.5
+    assert meta["filter.dims"] == [-1] and meta["filter.delay"] == 0.0  # odd order: compensated
+    assert meta["filter.compensated"] is True

@@ -118,7 +118,7 @@ def test_two_tap_reflect_fast_paths():
 def test_float32_matches_float64_numpy_reference(design41):
     x64 = _scene(4, 60, 256) + 0.05 * torch.randn(4, 1, 60, 256, dtype=torch.float64)
     ref = ndi.convolve1d(x64.numpy(), design41.taps, axis=-1, mode="mirror")
-    f = FPNFilter(design41.taps)
+    f = FPNFilter(design41.taps, allow_shift=True)
     with torch.inference_mode():
         y = f(x64.float())
     assert y.dtype == torch.float32
@@ -135,7 +135,7 @@ def test_matches_opencv_filter2d(design41):
     ref = cv2.filter2D(
         x[0, 0].numpy(), -1, kernel, anchor=anchor, borderType=cv2.BORDER_REFLECT_101
     )
-    y = FPNFilter(taps)(x)[0, 0].numpy()
+    y = FPNFilter(taps, allow_shift=True)(x)[0, 0].numpy()
     np.testing.assert_allclose(y, ref, rtol=0, atol=1e-5)
 
 
@@ -176,7 +176,7 @@ def test_stripes_drop_60db_away_from_borders(order, dtype):
 @pytest.mark.parametrize("order", [20, 28, 41])
 def test_passband_signal_passes_with_designed_ripple(order):
     rho = 0.13
-    f = filter_from_design(order, rho)
+    f = filter_from_design(order, rho, compensate_delay=False, allow_shift=True)
     design = f.design
     w = 600
     n = torch.arange(w, dtype=torch.float64)
@@ -207,11 +207,13 @@ def test_constant_image_gets_dc_gain_all_borders_and_narrow():
 
 
 def test_half_sample_delay_reported_and_compensated():
-    odd = filter_from_design(41, 0.12)
+    odd = filter_from_design(41, 0.12, compensate_delay=False, allow_shift=True)
     even = filter_from_design(40, 0.12)
     assert odd.delay == 0.5 and odd.order == 41 and not odd.compensated
     assert even.delay == 0.0
-    comp = filter_from_design(41, 0.12, compensate_delay=True)
+    with pytest.raises(ValueError, match="shift the output by half a sample"):
+        filter_from_design(41, 0.12, compensate_delay=False)
+    comp = filter_from_design(41, 0.12)  # compensated by default
     assert comp.compensated and comp.delay == 0.0 and comp.order == 41
     assert comp.taps.numel() % 2 == 1
     w = 400
@@ -294,7 +296,7 @@ def test_fast_validity_check_special_values(value, design20):
 
 def test_torchscript_matches_eager(design41):
     for dim in (-1, -2, (-2, -1)):
-        f = FPNFilter(design41.taps, dim=dim)
+        f = FPNFilter(design41.taps, dim=dim, allow_shift=True)
         s = torch.jit.script(f)
         x = _scene(2, 40, 60).float()
         torch.testing.assert_close(s(x), f(x), rtol=0, atol=0)

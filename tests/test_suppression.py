@@ -30,14 +30,14 @@ def _inputs(b=2, h=40, w=96, seed=0):
 
 def test_matches_scipy_plus_numpy_fusion():
     depth, amplitude = _inputs()
-    m = suppression_from_design()
+    m = suppression_from_design(gate=False)
     out = m(depth, amplitude)
     taps = design_fpn(20, 0.14).taps
     filtered = ndi.convolve1d(depth.numpy(), taps, axis=-1, mode="mirror")
     delta = np.interp(amplitude.numpy(), [70.0, 350.0], [1.0, 0.2])
     ref = delta * filtered + (1 - delta) * depth.numpy()
     np.testing.assert_allclose(out.numpy(), ref, rtol=0, atol=1e-12)
-    plain = suppression_from_design(adaptive=False)(depth, amplitude)
+    plain = suppression_from_design(adaptive=False, gate=False)(depth)
     np.testing.assert_allclose(plain.numpy(), filtered, rtol=0, atol=1e-12)
 
 
@@ -66,8 +66,7 @@ def test_torchscript_matches_eager():
 
 def test_gradcheck_and_trainable():
     depth, amplitude = _inputs(1, 3, 16)
-    m = suppression_from_design(trainable=True)
-    m.filter.taps.data = m.filter.taps.data.double()
+    m = suppression_from_design(trainable=True, gate=False)
     depth.requires_grad_(True)
     assert torch.autograd.gradcheck(lambda d: m(d, amplitude), (depth,))
     assert isinstance(m.filter.taps, torch.nn.Parameter)
@@ -104,7 +103,9 @@ def test_from_data_other_frequency_is_suppressed():
     assert abs(m.design.notches[0] - f0) < 0.01
     clean, _ = _striped_frames([])
     with torch.inference_mode():
-        residual = (m(d, a) - m(clean, a))[..., 40:-40]
+        out = m(d, a)
+        m.gate = False  # the clean frame has no stripes: its gate would stay shut
+        residual = (out - m(clean, a))[..., 40:-40]
     stripes = (d - clean)[..., 40:-40]
     ratio_db = 10 * math.log10(residual.pow(2).mean() / stripes.pow(2).mean())
     # the notch sits at the *estimated* frequency; the residual is set by the estimation error
@@ -147,3 +148,16 @@ def test_real_adi_wall_frame():
     # where valid, the change is bounded by the stripe level (a few mm), not by smeared zeros
     change = (out - depth)[~invalid].abs()
     assert change.median() < 10.0
+
+
+def test_gate_keeps_stripe_free_frames_and_opens_for_stripes():
+    """The default (gated) stage returns a stripe-free frame bit for bit, and on a striped frame
+    does what the ungated stage does."""
+    d, a = _striped_frames([])
+    gated = suppression_from_design()
+    torch.testing.assert_close(gated(d, a), d, rtol=0, atol=0)
+    s, _ = _striped_frames([2 * math.pi / 3, math.pi])
+    ungated = suppression_from_design(gate=False)
+    torch.testing.assert_close(gated(s, a), ungated(s, a), rtol=0, atol=1e-12)
+    weak = d + 1e-4 * torch.cos(math.pi * torch.arange(d.shape[-1], dtype=d.dtype))
+    torch.testing.assert_close(gated(weak, a), weak, rtol=0, atol=0)  # under the floor

@@ -8,8 +8,8 @@ what the design was (``order``, ``rho``, ``notches``, which TorchScript and ONNX
 
 Example:
     >>> stage = suppression_from_design(20, 0.14)
-    >>> stage.filter.order, stage.filter.rho, stage.filter.taps.shape
-    (20, 0.14, torch.Size([21]))
+    >>> stage.filter.order, stage.filter.rho, stage.filter.taps.shape, stage.gate
+    (20, 0.14, torch.Size([21]), True)
 """
 
 from __future__ import annotations
@@ -18,11 +18,12 @@ import math
 from collections.abc import Sequence
 
 import torch
+from torch import nn
 
 from . import constants as K
 from .analysis.stripes import StripeEstimate, estimate_stripes
 from .design import compensate_half_sample, design_fpn, max_rho
-from .runtime import FPNFilter, FPNSuppression
+from .runtime import AmplitudeFusion, FPNFilter, FPNSuppression
 
 __all__ = [
     "MAX_RIPPLE_DB",
@@ -69,19 +70,20 @@ def filter_from_design(
     *,
     notches: Sequence[float] = K.DEFAULT_NOTCHES,
     band_weights: Sequence[float] | None = None,
-    compensate_delay: bool = False,
+    compensate_delay: bool = True,
     unit_dc: bool = True,
     max_ripple_db: float | None = MAX_RIPPLE_DB,
     **kwargs,
 ) -> FPNFilter:
     """Design taps with :func:`tof_fpn_torch.design.design_fpn` and build an :class:`FPNFilter`.
 
-    ``compensate_delay`` convolves the taps of an odd order with a half-sample interpolator
-    (:func:`tof_fpn_torch.design.compensate_half_sample`), so the output stays on the input grid.
+    ``compensate_delay`` (default) convolves the taps of an odd order with a half-sample
+    interpolator (:func:`tof_fpn_torch.design.compensate_half_sample`), so the output stays on the
+    input grid; with False an odd order needs ``allow_shift=True`` (the paper's filters).
     ``unit_dc`` constrains ``H(0) = 1`` (default; the paper's design with False). A design whose
     ripple is worse than ``max_ripple_db`` is refused with a ``ValueError``. ``kwargs`` go to
-    :class:`FPNFilter` (``dim``, ``border``, ``trainable``). The design is kept in
-    ``module.design``.
+    :class:`FPNFilter` (``dim``, ``border``, ``trainable``, ``allow_shift``). The design is kept
+    in ``module.design``.
     """
     design, taps, meta = _design(
         order, rho, notches, band_weights, compensate_delay, unit_dc, max_ripple_db
@@ -96,24 +98,41 @@ def suppression_from_design(
     rho: float = K.DEFAULT_RHO,
     *,
     notches: Sequence[float] = K.DEFAULT_NOTCHES,
+    dim: int | tuple[int, ...] = -1,
+    adaptive: bool = True,
+    low: float = K.FUSION_LOW,
+    high: float = K.FUSION_HIGH,
+    floor: float = K.FUSION_FLOOR,
+    gate: bool = True,
+    destripe: nn.Module | None = None,
     band_weights: Sequence[float] | None = None,
-    compensate_delay: bool = False,
+    compensate_delay: bool = True,
     unit_dc: bool = True,
     max_ripple_db: float | None = MAX_RIPPLE_DB,
     **kwargs,
 ) -> FPNSuppression:
-    """Design taps and build an :class:`FPNSuppression` (filter + eq. 11 fusion).
+    """Design taps and build an :class:`FPNSuppression`: notch filter, eq. (11) fusion (when
+    ``adaptive``; thresholds ``low``, ``high``, ``floor`` in the camera's amplitude units, CamCube's
+    by default), the stripe gate (when ``gate``), and an optional ``destripe`` module first.
 
-    Defaults: Table I's best adaptive filter ``{20, 0.14}`` with notches at ``2pi/3`` and ``pi``.
-    ``kwargs`` go to :class:`FPNSuppression` (``dim``, ``adaptive``, ``low``, ``high``, ``floor``,
-    ``border``, ``trainable``); ``unit_dc`` and ``max_ripple_db`` as in :func:`filter_from_design`.
+    Defaults: Table I's best adaptive filter ``{20, 0.14}`` with notches at ``2pi/3`` and ``pi``,
+    unit DC gain, gated. The paper's stage is ``suppression_from_design(unit_dc=False,
+    gate=False)``. ``compensate_delay``, ``unit_dc``, ``max_ripple_db`` and ``kwargs`` (``border``,
+    ``trainable``, ``allow_shift``) as in :func:`filter_from_design`.
     """
-    design, taps, meta = _design(
-        order, rho, notches, band_weights, compensate_delay, unit_dc, max_ripple_db
+    filt = filter_from_design(
+        order,
+        rho,
+        notches=notches,
+        band_weights=band_weights,
+        compensate_delay=compensate_delay,
+        unit_dc=unit_dc,
+        max_ripple_db=max_ripple_db,
+        dim=dim,
+        **kwargs,
     )
-    module = FPNSuppression(taps, **kwargs, **meta)
-    module.filter.design = design
-    return module
+    fusion = AmplitudeFusion(low, high, floor) if adaptive else None
+    return FPNSuppression(filt, fusion, destripe=destripe, gate=gate)
 
 
 def suppression_from_data(
@@ -128,9 +147,8 @@ def suppression_from_data(
     """Design notches for the stripes :func:`~tof_fpn_torch.analysis.estimate_stripes` finds.
 
     Components with ``confidence >= min_confidence`` are kept; their frequencies become the
-    notches (within 1e-3 rad of pi snapped to pi), the orientations found set ``dim`` (both
-    orientations share one notch set). ``rho`` defaults to ``min(DEFAULT_RHO, 0.9 max_rho)``.
-    The estimate is kept in ``module.estimate``.
+    notches, the orientations found set ``dim`` (both orientations share one notch set). ``rho``
+    defaults to ``min(DEFAULT_RHO, 0.9 max_rho)``. The estimate is kept in ``module.estimate``.
 
     Raises:
         ValueError: bad input, or no stripe found (the message lists the best candidates).

@@ -46,6 +46,15 @@ FUSION_HIGH: float = 350.0
 #: Weight of the filtered depth for strong signals.
 FUSION_FLOOR: float = 0.2
 
+# --- the stripe gate of the FPN stage (runtime/gate.py; beyond the paper) -----------------------
+#: One-sided standard normal quantile of the gate's false-alarm probability, 1e-3 per image.
+GATE_Z: float = 3.090232306167813
+#: Smallest stripe amplitude, in units of the per-pixel variation the notch sees besides stripes
+#: (noise, scene detail), that opens the gate (fully at 2x): a stripe whose power is under 1 % of
+#: that is not worth what a notch does to the scene. (The real ADI wall's 7 um row stripe at pi is
+#: at ~0.03; the paper's synthetic FPN at ~0.3.)
+GATE_MIN_STRIPE: float = 0.1
+
 # --- the depth-domain FPN model (eq. 10, reconstructed; Sec. IV-B) -----------------------------
 FPN_ALPHA: float = -3.966
 FPN_BETA: float = 0.012

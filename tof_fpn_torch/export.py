@@ -85,8 +85,8 @@ def export_onnx(
     """Export to ONNX (opset >= 17) at ``path``, with the design in ``metadata_props``.
 
     Args:
-        module: e.g. :class:`FPNSuppression` (inputs ``depth, amplitude``) or :class:`FPNFilter`
-            (input ``x``).
+        module: e.g. :class:`FPNSuppression` (inputs ``depth, amplitude``, or ``depth`` alone when
+            its ``needs_amplitude`` is False) or :class:`FPNFilter` (input ``x``).
         example_inputs: tensors to trace with; default (2, 1, 64, 80) float32 (one per input).
         opset: ONNX opset, >= 17.
         dynamic: dynamic batch, height and width (each >= 2).
@@ -101,7 +101,12 @@ def export_onnx(
     import onnx
 
     model = copy.deepcopy(module).eval()
-    names = ["x"] if isinstance(model, FPNFilter) else ["depth", "amplitude"]
+    if isinstance(model, FPNFilter):
+        names = ["x"]
+    elif getattr(model, "needs_amplitude", True):
+        names = ["depth", "amplitude"]
+    else:
+        names = ["depth"]
     if example_inputs is None:
         gen = torch.Generator().manual_seed(0)
         example_inputs = tuple(

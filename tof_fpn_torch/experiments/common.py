@@ -196,8 +196,9 @@ def filter_outputs(
     stage = suppression_from_design(
         order,
         rho,
-        adaptive=False,
+        gate=False,
         compensate_delay=compensate_delay,
+        allow_shift=True,
         unit_dc=unit_dc,
         max_ripple_db=None,
     )

@@ -214,6 +214,9 @@ class FPNFilter(nn.Module):
         border: ``"reflect"`` (default), ``"replicate"``, ``"circular"`` or ``"zeros"``. Any width
             works, also narrower than the filter.
         trainable: make the taps an ``nn.Parameter``.
+        allow_shift: accept even-length taps (odd order), whose output sits half a sample off the
+            input grid (:attr:`delay` 0.5). Refused by default: the stage must never shift the
+            image; compensate the delay in the design (``compensate_delay=True`` of the builders).
         order, rho, notches: the design the taps come from (metadata; ``order`` defaults to
             ``L - 1``, ``rho`` to NaN = unknown, ``notches`` to none).
         compensated: the taps include a half-sample delay compensator (metadata).
@@ -243,6 +246,7 @@ class FPNFilter(nn.Module):
         dim: int | tuple[int, ...] = -1,
         border: str = "reflect",
         trainable: bool = False,
+        allow_shift: bool = False,
         *,
         order: int | None = None,
         rho: float | None = None,
@@ -254,6 +258,12 @@ class FPNFilter(nn.Module):
         check_taps(t)
         if border not in BORDER_MODES:
             raise ValueError(f"border must be one of {BORDER_MODES}, got {border!r}")
+        if t.numel() % 2 == 0 and not allow_shift:
+            raise ValueError(
+                f"taps of even length {t.numel()} (an odd order) shift the output by half a "
+                "sample; use an even order, compensate the delay (compensate_delay=True in "
+                "tof_fpn_torch.build), or pass allow_shift=True to accept the shift"
+            )
         self.dims = list(normalize_dims(dim))
         self.border = border
         self.order = int(t.numel() - 1 if order is None else order)

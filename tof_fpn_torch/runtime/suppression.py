@@ -1,9 +1,18 @@
-r"""FPN suppression stage: notch filtering plus amplitude-gated fusion (Georgiev et al., Sec. III-IV).
+r"""The FPN suppression stage: broadband destriping, notch filtering, amplitude fusion, each optional.
 
-``FPNSuppression`` = :class:`~tof_fpn_torch.runtime.FPNFilter` followed (``adaptive=True``) by
-:class:`~tof_fpn_torch.runtime.AmplitudeFusion` (eq. 11). It takes taps; to design them, use
-:func:`tof_fpn_torch.build.suppression_from_design` (default ``{20, 0.14}``, the paper's best
-adaptive result in Table I) or :func:`tof_fpn_torch.build.suppression_from_data`.
+Georgiev et al. (IEEE SAS 2015, Sec. III-IV) filter with a notch FIR and fuse the filtered and raw
+depth by amplitude (eq. 11). :class:`FPNSuppression` composes:
+
+1. ``destripe`` (optional): a broadband column / row offset remover (beyond the paper);
+2. ``filter`` (optional): the notch :class:`FPNFilter`;
+3. ``fusion`` (optional): :class:`AmplitudeFusion` of the notch output with its input;
+4. ``gate`` (default on): the notch part (2 + 3) is applied as ``y + g (notched - y)`` with the
+   per-image :func:`~tof_fpn_torch.runtime.gate.stripe_gate` ``g``, which stays 0 unless the frame
+   has stripes the notch removes, so a stripe-free frame comes out as it went in.
+
+Build one with :func:`tof_fpn_torch.build.suppression_from_design` (the paper's ``{20, 0.14}``,
+unit DC gain) or :func:`tof_fpn_torch.build.suppression_from_data` (pieces picked from what is
+detected); the paper's ungated stage is ``suppression_from_design(gate=False)``.
 """
 
 from __future__ import annotations
@@ -17,88 +26,129 @@ from .. import constants as K
 from ._checks import check_image, check_same_shape
 from .fpn_filter import FPNFilter, _tracing
 from .fusion import AmplitudeFusion, _fuse
+from .gate import stripe_gate
 from .validity import all_valid, valid_mask
 
 __all__ = ["FPNSuppression"]
 
 
+def _noise_gain(taps: torch.Tensor) -> float:
+    """``||delta - h||^2``: the white-noise power gain of ``I - H`` (odd-length taps)."""
+    d = taps.detach().double().clone()
+    d[d.numel() // 2] -= 1.0
+    return float((d * d).sum())
+
+
 class FPNSuppression(nn.Module):
-    r"""Fixed-pattern-noise suppression of ToF depth: notch FIR + amplitude fusion.
+    r"""Fixed-pattern-noise suppression of ToF depth (see the module docstring).
 
     Args:
-        taps: notch filter taps (see :class:`FPNFilter`).
-        dim: ``-1`` (column stripes), ``-2`` (row stripes) or ``(-2, -1)``.
-        adaptive: fuse with the raw depth by amplitude (eq. 11); else return the filtered depth.
-        low, high, floor: :class:`AmplitudeFusion` parameters.
-        border, trainable, order, rho, notches, compensated: see :class:`FPNFilter`.
+        filter: the notch :class:`FPNFilter`, or None.
+        fusion: :class:`AmplitudeFusion` (eq. 11) of the notch output, or None (then no amplitude
+            is needed).
+        destripe: a broadband offset remover (a module ``(depth, amplitude) -> depth``), or None.
+        gate: apply the notch part through the per-image stripe gate.
+        min_stripe: the gate's floor: the smallest stripe amplitude, in units of the per-pixel
+            noise, that opens it.
 
     Shape:
         - depth: (B, 1, H, W) float; invalid pixels (NaN, +-inf, <= 0, or an amplitude that is NaN,
           inf or negative) are returned unchanged.
-        - amplitude: (B, 1, H, W) float.
+        - amplitude: (B, 1, H, W) float, or None when no piece uses it.
         - Output: (B, 1, H, W).
 
     Example:
-        >>> m = FPNSuppression(torch.tensor([0.25, 0.5, 0.25]))
+        >>> m = FPNSuppression(FPNFilter(torch.tensor([0.25, 0.5, 0.25])), AmplitudeFusion())
         >>> m(torch.rand(1, 1, 32, 48) + 1.0, torch.full((1, 1, 32, 48), 100.0)).shape
         torch.Size([1, 1, 32, 48])
     """
 
     __jit_ignored_attributes__ = ["estimate"]
-    __jit_unused_properties__ = ["design"]
+    __jit_unused_properties__ = ["design", "adaptive"]
 
     def __init__(
         self,
-        taps,
-        dim: int | tuple[int, ...] = -1,
-        adaptive: bool = True,
-        low: float = K.FUSION_LOW,
-        high: float = K.FUSION_HIGH,
-        floor: float = K.FUSION_FLOOR,
-        border: str = "reflect",
-        trainable: bool = False,
-        *,
-        order: int | None = None,
-        rho: float | None = None,
-        notches: tuple[float, ...] = (),
-        compensated: bool = False,
+        filter: FPNFilter | None = None,
+        fusion: AmplitudeFusion | None = None,
+        destripe: nn.Module | None = None,
+        gate: bool = True,
+        min_stripe: float = K.GATE_MIN_STRIPE,
     ) -> None:
         super().__init__()
-        self.filter = FPNFilter(
-            taps,
-            dim=dim,
-            border=border,
-            trainable=trainable,
-            order=order,
-            rho=rho,
-            notches=notches,
-            compensated=compensated,
-        )
-        self.fusion = AmplitudeFusion(low, high, floor)
-        self.adaptive = bool(adaptive)
+        if filter is not None and not isinstance(filter, FPNFilter):
+            raise ValueError(f"filter must be an FPNFilter or None, got {type(filter).__name__}")
+        if fusion is not None and not isinstance(fusion, AmplitudeFusion):
+            raise ValueError(
+                f"fusion must be an AmplitudeFusion or None, got {type(fusion).__name__}"
+            )
+        if fusion is not None and filter is None:
+            raise ValueError("fusion blends the notch filter's output: it needs a filter")
+        if destripe is not None and not isinstance(destripe, nn.Module):
+            raise ValueError(f"destripe must be an nn.Module or None, got {type(destripe)}")
+        if not (isinstance(min_stripe, (int, float)) and 0.0 <= min_stripe < math.inf):
+            raise ValueError(f"min_stripe must be a finite number >= 0, got {min_stripe!r}")
+        self.filter = filter
+        self.fusion = fusion
+        self.destripe = destripe
+        self.gate = bool(gate) and filter is not None
+        self.min_stripe = float(min_stripe)
+        self.noise_gain = 0.0 if filter is None else _noise_gain(filter.taps)
         self.estimate = None  # the stripe estimate, when a builder made this module from data
 
     @property
     def design(self):
-        """The offline design of the filter (when a builder made this module), else None."""
-        return self.filter.design
+        """The offline design of the notch filter (when a builder made this module), else None."""
+        return None if self.filter is None else self.filter.design
+
+    @property
+    def adaptive(self) -> bool:
+        """Whether the notch output is fused with the raw depth by amplitude (eq. 11)."""
+        return self.fusion is not None
+
+    @property
+    def needs_amplitude(self) -> bool:
+        """Whether :meth:`forward` needs an amplitude."""
+        return self.fusion is not None
 
     def extra_repr(self) -> str:
-        return f"adaptive={self.adaptive}"
+        return f"gate={self.gate}, min_stripe={self.min_stripe}"
 
-    def forward(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor:
+    def forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
         check_image(depth, "depth", 1)
-        check_image(amplitude, "amplitude", 1)
-        check_same_shape(amplitude, depth, "amplitude", "depth")
+        if amplitude is not None:
+            check_image(amplitude, "amplitude", 1)
+            check_same_shape(amplitude, depth, "amplitude", "depth")
+        elif self.fusion is not None:
+            raise ValueError(
+                "amplitude is required: this stage fuses by amplitude (eq. 11); pass it, or "
+                "build the stage with fusion=None"
+            )
         mask: torch.Tensor | None = None
         if _tracing():
             mask = valid_mask(depth, amplitude)
-        elif amplitude.numel() > 0:  # one min/max each instead of a mask when all are valid
-            lo, hi = torch.aminmax(amplitude)
-            if not (bool(lo >= 0) and bool(hi < math.inf)) or not all_valid(depth):
+        elif depth.numel() > 0:  # one min/max each instead of a mask when all are valid
+            amp_ok = True
+            if amplitude is not None:
+                lo, hi = torch.aminmax(amplitude)
+                amp_ok = bool(lo >= 0) and bool(hi < math.inf)
+            if not amp_ok or not all_valid(depth):
                 mask = valid_mask(depth, amplitude)
-        filtered = self.filter(depth, mask)
-        if not self.adaptive:
-            return filtered
-        f = self.fusion
-        return _fuse(filtered, depth, amplitude, f.low, f.high, f.floor)
+        y = depth
+        destripe = self.destripe
+        if destripe is not None:
+            y = destripe(y, amplitude)
+        notch = self.filter
+        if notch is None:
+            return y
+        filtered = notch(y, mask)
+        out = filtered
+        fusion = self.fusion
+        if fusion is not None and amplitude is not None:
+            out = _fuse(filtered, y, amplitude, fusion.low, fusion.high, fusion.floor)
+        if not self.gate:
+            return out
+        g = stripe_gate(y, filtered, mask, notch.dims, self.noise_gain, self.min_stripe)
+        blended = y + g.to(y.dtype) * (out - y)
+        if mask is None:
+            return blended
+        return torch.where(mask, blended, depth)
