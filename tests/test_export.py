@@ -148,3 +148,46 @@ def test_design_survives_torchscript_and_onnx(tmp_path, cli_onnx):
     assert meta["filter.notches"] == pytest.approx([2 * np.pi / 3, np.pi])
     assert meta["filter.dims"] == [-1] and meta["filter.delay"] == 0.0  # odd order: compensated
     assert meta["filter.compensated"] is True
+
+
+@pytest.mark.parametrize("shape", [(2, 1, 64, 80), (1, 1, 33, 47)])
+def test_onnx_agrees_with_eager_with_the_gate_open(cli_onnx, shape):
+    """Striped frames open the stripe gate: the exported gate must compute what eager does."""
+    import onnxruntime as ort
+
+    d, a = _inputs(shape)
+    n = torch.arange(shape[-1], dtype=d.dtype)
+    d = d + 0.2 * torch.cos(np.pi * n) + 0.2 * torch.cos(2 * np.pi / 3 * n)
+    a = 0.2 * a  # low amplitude: the fusion filters fully
+    m = suppression_from_design(order=41, rho=0.12)
+    with torch.inference_mode():
+        ref = m(d, a)
+        m.gate = False
+        ungated = m(d, a)
+    assert torch.equal(ref.isnan(), ungated.isnan())
+    torch.testing.assert_close(ref, ungated, equal_nan=True)  # the gate is fully open here
+    (out,) = ort.InferenceSession(str(cli_onnx)).run(
+        None, {"depth": d.numpy(), "amplitude": a.numpy()}
+    )
+    np.testing.assert_allclose(out, ref.numpy(), rtol=0, atol=1e-5, equal_nan=True)
+
+
+def test_onnx_agrees_with_eager_with_the_gate_half_open(cli_onnx):
+    """Weaker stripes: 0 < g < 1, so the exported statistic itself is compared, not a clamp."""
+    import onnxruntime as ort
+
+    d, a = _inputs((2, 1, 64, 80), holes=False)
+    n = torch.arange(80, dtype=d.dtype)
+    d = d + 0.05 * torch.cos(np.pi * n)
+    a = 0.2 * a
+    m = suppression_from_design(order=41, rho=0.12)
+    with torch.inference_mode():
+        ref = m(d, a)
+        m.gate = False
+        full = m(d, a)
+    g = ((ref - d) / (full - d)).flatten(1).median(1).values
+    assert bool(((g > 0.05) & (g < 0.95)).all()), g
+    (out,) = ort.InferenceSession(str(cli_onnx)).run(
+        None, {"depth": d.numpy(), "amplitude": a.numpy()}
+    )
+    np.testing.assert_allclose(out, ref.numpy(), rtol=0, atol=1e-5)

@@ -47,8 +47,10 @@ FUSION_HIGH: float = 350.0
 FUSION_FLOOR: float = 0.2
 
 # --- the stripe gate of the FPN stage (runtime/gate.py; beyond the paper) -----------------------
-#: One-sided standard normal quantile of the gate's false-alarm probability, 1e-3 per image.
-GATE_Z: float = 3.090232306167813
+#: False-alarm probability of the gate's line test, per notch frequency and image.
+GATE_FALSE_ALARM: float = 1e-3
+#: Reference frequencies the line test compares the notch frequency's power with.
+GATE_REFERENCES: int = 8
 #: Smallest stripe amplitude, in units of the per-pixel variation the notch sees besides stripes
 #: (noise, scene detail), that opens the gate (fully at 2x): a stripe whose power is under 1 % of
 #: that is not worth what a notch does to the scene. (The real ADI wall's 7 um row stripe at pi is

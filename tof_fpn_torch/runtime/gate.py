@@ -1,30 +1,29 @@
-r"""Stripe gate: open the FPN stage only for frames whose stripes are really there (torch only).
+r"""Stripe gate: open the FPN notch stage only for frames whose stripes are really there.
 
 A notch filter removes everything at its frequencies: fixed-pattern stripes, but also scene detail
-(edges, thin objects, fine texture) and noise. On a frame without stripes it can only hurt (up to
-10 dB PSNR on the detailed synthetic scenes). Stripes differ from scene detail in one way a single
-frame shows: they are the same in every row (column stripes; every column for row stripes).
+(edges, thin objects, slopes, texture) and noise. On a frame without stripes it can only hurt (up
+to 10 dB PSNR on the detailed synthetic scenes). Stripes differ from the scene in two ways one
+frame shows: they are the same in every row (column stripes), and they are *narrowband*: a sharp
+line at the notch frequency ``w0``, where edges, slopes and noise have a smooth spectrum.
 
-Statistic, per image and orientation. Let ``e = x - H x`` be what the filter removes (its
-notch-band content) on the valid pixels. With a robust scale ``s`` of ``e`` (three rounds of
-clipped mean absolute value, ``1.2533 mean|e|`` over ``|e| <= 3 s``: no sort, exportable), keep
-the pixels with ``|e| <= 3 s`` (edges of objects and thin high-contrast bars drop out) and average
-``e`` down every column: the profile ``p(x)`` over ``n(x)`` kept rows. Stripes survive the
-average; noise and scene detail that is not the same in every row average down to variance
-``s^2 / n(x)``. So::
+Statistic, per image, orientation and notch (torch only, exportable: sums, no sort):
 
-    T = sum_x p(x)^2 / sum_x (s^2 / n(x))          ~ chi^2_nu / nu without stripes
+1. The column profile ``p(x)``: the mean of the depth down each column over the pixels that are
+   valid and not outliers of the notch residual ``e = x - H x`` (``|e| <= 3 s``, ``s`` a robust
+   scale of ``e``: object edges and thin high-contrast structure drop out), minus its mean.
+2. Its Hann-windowed DFT power at ``w0`` and at the ``R = 8`` nearest reference frequencies 3 to
+   12 bins away inside ``(0, pi)`` and 2.5 bins or more from every notch (another stripe line),
+   evaluated exactly (no FFT bins: any width works).
+3. ``T = P(w0) / mean P(ref)``. Without a line at ``w0`` (any smooth local spectrum) ``T`` follows
+   ``F(2, 2R)``, ``P(T > t) = (1 + t / R)^-R``; the gate opens above the threshold of false-alarm
+   probability ``a`` (:data:`~tof_fpn_torch.constants.GATE_FALSE_ALARM`, 1e-3 per notch and
+   image), fully at twice it.
+4. A floor in depth units: the line's amplitude ``a_hat`` (from ``P(w0) - mean P(ref)``) must be at
+   least ``min_stripe`` (:data:`~tof_fpn_torch.constants.GATE_MIN_STRIPE`) times the per-pixel
+   noise ``s / sqrt(g_e)`` (``g_e = ||delta - h||^2``), fully at twice that.
 
-with ``nu = W g_e`` degrees of freedom, ``g_e = ||delta - h||^2`` the white-noise power gain of
-``I - H`` (the fraction of the band the notches remove). The gate opens above the
-false-alarm threshold ``T_a`` of ``chi^2_nu / nu`` at probability ``a`` = 1e-3 per image
-(:data:`~tof_fpn_torch.constants.GATE_Z`, Wilson-Hilferty), fully at
-``2 T_a``, and only when the stripe amplitude ``sqrt(mean p^2 - mean s^2/n)`` is at least
-``min_stripe`` (:data:`~tof_fpn_torch.constants.GATE_MIN_STRIPE`, 0.1) times the per-pixel
-noise ``s / sqrt(g_e)`` (fully at twice that): a stripe far below
-the noise is not worth what the filter does to the scene. Both ramps are linear, so the output is
-a continuous function of the input. ``g`` is per image, in ``[0, 1]``; the stage returns
-``x + g (stage(x) - x)``.
+``g`` is per image, in ``[0, 1]``, the largest over notches and orientations; both ramps are
+linear, so the stage output ``x + g (stage(x) - x)`` is a continuous function of the input.
 """
 
 from __future__ import annotations
@@ -35,14 +34,13 @@ import torch
 
 from .. import constants as K
 
-__all__ = ["chi2_upper_quantile", "stripe_gate"]
+__all__ = ["false_alarm_threshold", "stripe_gate"]
 
 
-def chi2_upper_quantile(dof: torch.Tensor, z: float = K.GATE_Z) -> torch.Tensor:
-    """Upper quantile of ``chi^2_dof / dof`` at the standard normal quantile ``z``
-    (Wilson-Hilferty; tensor arithmetic, so it traces with symbolic sizes)."""
-    c = 2.0 / (9.0 * dof.clamp_min(1.0))
-    return (1.0 - c + z * c.sqrt()) ** 3
+def false_alarm_threshold(references: int, probability: float = K.GATE_FALSE_ALARM) -> float:
+    """``t`` with ``P(F(2, 2R) > t) = (1 + t / R)^-R = probability`` for ``R`` references."""
+    r = float(references)
+    return r * (probability ** (-1.0 / r) - 1.0)
 
 
 def _robust_scale(e: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
@@ -60,21 +58,34 @@ def _robust_scale(e: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
     return s.clamp_min(1e-30)
 
 
-def _statistic(
-    e: torch.Tensor, keep: torch.Tensor, s: torch.Tensor, avg_dim: int, gain: float
+def _line_power(
+    p: torch.Tensor, w0: float, notches: list[float]
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(T, stripe rms / pixel noise, profile length)`` per image for profiles averaged along
-    ``avg_dim``."""
-    k = keep & (e.abs() <= 3.0 * s)
-    n = k.sum(avg_dim, keepdim=True).to(e.dtype)
-    p = torch.where(k, e, torch.zeros_like(e)).sum(avg_dim, keepdim=True) / n.clamp_min(1.0)
-    has = n > 0
-    expected = torch.where(has, s * s / n.clamp_min(1.0), torch.zeros_like(n))
-    power = (p * p).sum((-3, -2, -1), keepdim=True)
-    noise = expected.sum((-3, -2, -1), keepdim=True).clamp_min(1e-30)
-    cols = has.sum((-3, -2, -1), keepdim=True).clamp_min(1).to(e.dtype)
-    stripe = ((power - noise) / cols).clamp_min(0.0).sqrt()
-    return power / noise, stripe / (s / math.sqrt(max(gain, 1e-12))), cols
+    """Hann-windowed DFT power of profiles ``p`` (B, L) at ``w0`` and at the ``R`` reference
+    frequencies nearest to it (3 to 12 bins away, inside ``(0, pi)``, at least 2.5 bins from every
+    notch, where another stripe line may sit): ``(P0 (B,), mean P_ref (B,), sum of the window)``.
+    Tensor arithmetic only, so it traces with a symbolic ``L``."""
+    n = torch.arange(p.shape[1], dtype=p.dtype, device=p.device)
+    length = n.numel() + torch.zeros((), dtype=p.dtype, device=p.device)
+    win = 0.5 - 0.5 * torch.cos(2.0 * math.pi * (n + 1.0) / (length + 1.0))
+    step = 2.0 * math.pi / length
+    k = torch.arange(3, 13, dtype=p.dtype, device=p.device)
+    offsets = torch.cat([-k, k])
+    cand = w0 + offsets * step
+    bad = (cand <= 0.0) | (cand >= math.pi)
+    for w in notches:
+        bad = bad | ((cand - w).abs() < 2.5 * step)
+    score = offsets.abs() + 1000.0 * bad.to(p.dtype)
+    ref = cand[torch.topk(score, K.GATE_REFERENCES, largest=False).indices]
+    omega = torch.cat([torch.full((1,), w0, dtype=p.dtype, device=p.device), ref])
+    phase = n.unsqueeze(1) * omega.unsqueeze(0)  # (L, F)
+    xw = p * win
+    re = xw.matmul(torch.cos(phase))
+    im = xw.matmul(torch.sin(phase))
+    power = re * re + im * im  # (B, F)
+    # (a sum, not .mean: ONNX ReduceMean changed in opset 18 and does not convert down to 17)
+    mean_ref = power[:, 1:].sum(1) / float(K.GATE_REFERENCES)
+    return power[:, 0], mean_ref, 0.5 * (length + 1.0)  # 0.5 (L + 1): the sum of the window
 
 
 def stripe_gate(
@@ -82,16 +93,18 @@ def stripe_gate(
     filtered: torch.Tensor,
     valid: torch.Tensor | None,
     dims: list[int],
+    notches: list[float],
     gain: float,
     min_stripe: float = K.GATE_MIN_STRIPE,
 ) -> torch.Tensor:
-    """Per-image gate in ``[0, 1]`` (shape (B, 1, 1, 1)) for a filter with noise gain ``gain``.
+    """Per-image gate in ``[0, 1]`` (shape (B, 1, 1, 1)) for a notch filter.
 
     Args:
-        x: (B, 1, H, W) depth (invalid pixels filled or not; they are masked out).
+        x: (B, 1, H, W) depth (invalid pixels are masked out).
         filtered: (B, 1, H, W) the filter's output ``H x``.
         valid: (B, 1, H, W) bool or None (all valid).
         dims: the filtering dimensions (-1: column stripes, -2: row stripes).
+        notches: the notch frequencies (radians per sample) to test.
         gain: ``||delta - h||^2`` of the taps (white-noise power gain of ``I - H``).
         min_stripe: smallest stripe amplitude, in units of the per-pixel noise, that opens the
             gate (fully at twice that).
@@ -100,20 +113,36 @@ def stripe_gate(
         >>> g = torch.Generator().manual_seed(0)
         >>> x = 2.0 + 0.01 * torch.randn(1, 1, 64, 96, generator=g)
         >>> flat = torch.full_like(x, 2.0)  # a "filter" that removed only noise
-        >>> float(stripe_gate(x, flat, None, [-1], 1.0))
+        >>> float(stripe_gate(x, flat, None, [-1], [math.pi], 1.0))
         0.0
+        >>> striped = x + 0.02 * torch.cos(math.pi * torch.arange(96.0))
+        >>> float(stripe_gate(striped, flat, None, [-1], [math.pi], 1.0))
+        1.0
     """
     e = x - filtered
     keep = torch.isfinite(e) if valid is None else valid & torch.isfinite(e)
     e = torch.where(keep, e, torch.zeros_like(e))
     s = _robust_scale(e, keep)
-    gate = torch.zeros_like(s)
+    k = keep & (e.abs() <= 3.0 * s)
+    xk = torch.where(k, x, torch.zeros_like(x))
+    noise = (s / math.sqrt(max(gain, 1e-12))).flatten()
+    t_a = false_alarm_threshold(K.GATE_REFERENCES)
+    gate = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
     for d in dims:
         avg_dim = -2 if d == -1 else -1  # column stripes: average down the columns
-        t, ratio, cols = _statistic(e, keep, s, avg_dim, gain)
-        t_a = chi2_upper_quantile(cols * gain)
-        g = ((t - t_a) / t_a).clamp(0.0, 1.0)
-        if min_stripe > 0:
-            g = g * ((ratio - min_stripe) / min_stripe).clamp(0.0, 1.0)
-        gate = torch.maximum(gate, g)
-    return gate
+        n = k.sum(avg_dim).to(x.dtype).flatten(1)  # (B, L)
+        p = xk.sum(avg_dim).flatten(1) / n.clamp_min(1.0)
+        has = n > 0
+        mean = (p * has).sum(1, keepdim=True) / has.sum(1, keepdim=True).clamp_min(1)
+        p = torch.where(has, p - mean, torch.zeros_like(p))
+        for w0 in notches:
+            p0, ref, wsum = _line_power(p, w0, notches)
+            t = p0 / ref.clamp_min(1e-30)
+            scale = 1.0 if abs(w0 - math.pi) < 1e-9 else 0.5  # a cos at w0 < pi: half in w0
+            amp = (p0 - ref).clamp_min(0.0).sqrt() / (scale * wsum)
+            g = ((t - t_a) / t_a).clamp(0.0, 1.0)
+            if min_stripe > 0:
+                ratio = amp / noise
+                g = g * ((ratio - min_stripe) / min_stripe).clamp(0.0, 1.0)
+            gate = torch.maximum(gate, g)
+    return gate.view(-1, 1, 1, 1)

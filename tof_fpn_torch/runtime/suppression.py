@@ -58,7 +58,8 @@ class FPNSuppression(nn.Module):
         - Output: (B, 1, H, W).
 
     Example:
-        >>> m = FPNSuppression(FPNFilter(torch.tensor([0.25, 0.5, 0.25])), AmplitudeFusion())
+        >>> notch = FPNFilter(torch.tensor([0.25, 0.5, 0.25]), notches=(math.pi,))
+        >>> m = FPNSuppression(notch, AmplitudeFusion())
         >>> m(torch.rand(1, 1, 32, 48) + 1.0, torch.full((1, 1, 32, 48), 100.0)).shape
         torch.Size([1, 1, 32, 48])
     """
@@ -85,6 +86,11 @@ class FPNSuppression(nn.Module):
             raise ValueError("fusion blends the notch filter's output: it needs a filter")
         if destripe is not None and not isinstance(destripe, nn.Module):
             raise ValueError(f"destripe must be an nn.Module or None, got {type(destripe)}")
+        if gate and filter is not None and not filter.notches:
+            raise ValueError(
+                "gate=True tests for stripes at the filter's notch frequencies, but the filter "
+                "has none (FPNFilter(..., notches=...)); give them or pass gate=False"
+            )
         if not (isinstance(min_stripe, (int, float)) and 0.0 <= min_stripe < math.inf):
             raise ValueError(f"min_stripe must be a finite number >= 0, got {min_stripe!r}")
         self.filter = filter
@@ -147,7 +153,9 @@ class FPNSuppression(nn.Module):
             out = _fuse(filtered, y, amplitude, fusion.low, fusion.high, fusion.floor)
         if not self.gate:
             return out
-        g = stripe_gate(y, filtered, mask, notch.dims, self.noise_gain, self.min_stripe)
+        g = stripe_gate(
+            y, filtered, mask, notch.dims, notch.notches, self.noise_gain, self.min_stripe
+        )
         blended = y + g.to(y.dtype) * (out - y)
         if mask is None:
             return blended
