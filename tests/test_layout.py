@@ -27,9 +27,19 @@ ALLOWED: dict[str, set[str]] = {
     "design": {"plotting"},
     "analysis": {"runtime"},
     "sim": {"runtime"},
-    "build": {"runtime", "design", "analysis"},
+    "build": {"runtime", "design", "analysis", "denoise", "cameras"},
+    "cameras": set(),
     "plotting": set(),
-    "experiments": {"runtime", "design", "analysis", "denoise", "sim", "build", "plotting"},
+    "experiments": {
+        "runtime",
+        "design",
+        "analysis",
+        "denoise",
+        "sim",
+        "build",
+        "plotting",
+        "cameras",
+    },
     "export": {"runtime"},
     "cli": {
         "runtime",
@@ -41,6 +51,7 @@ ALLOWED: dict[str, set[str]] = {
         "experiments",
         "export",
         "plotting",
+        "cameras",
     },
 }
 #: third-party packages a layer may import (beyond the standard library)
@@ -51,6 +62,7 @@ THIRD_PARTY: dict[str, set[str]] = {
     "analysis": THIRD_PARTY_RUNTIME,
     "sim": {"torch"},
     "plotting": {"matplotlib"},
+    "cameras": set(),
 }
 
 

@@ -61,8 +61,8 @@ def test_low_amplitude_pixels_weigh_more():
     amp[..., :24, :] = 20.0
     d[..., :24, :] += 0.01 * torch.cos(2 * math.pi / 3 * n)
     d[..., 24:, :] += 0.05 * torch.randn(d[..., 24:, :].shape, generator=g, dtype=torch.float64)
-    weighted = estimate_stripes(d, amp, threshold_db=0.0, max_components=100)
-    plain = estimate_stripes(d, None, threshold_db=0.0, max_components=100)
+    weighted = estimate_stripes(d, amp, false_alarm=0.999, min_stripe=0.0, max_components=100)
+    plain = estimate_stripes(d, None, false_alarm=0.999, min_stripe=0.0, max_components=100)
 
     def snr(est):
         near = [

@@ -112,10 +112,28 @@ def test_from_data_other_frequency_is_suppressed():
     assert ratio_db < -25.0, ratio_db
 
 
-def test_from_data_without_stripes_raises():
+def test_from_data_without_stripes_is_the_identity():
+    """Nothing detected: no notch is built, and the stage returns its input unchanged."""
     d, a = _striped_frames([])
-    with pytest.raises(ValueError, match="no periodic stripes found"):
-        suppression_from_data(d, a)
+    m = suppression_from_data(d, a)
+    assert m.filter is None and m.estimate.components == ()
+    assert torch.equal(m(d, a), d)
+
+
+def test_from_data_measures_the_fusion_thresholds_in_the_data_units():
+    """The same frames with amplitudes in other units (x 20) get thresholds x 20: the gating
+    follows the camera's units, not CamCube's."""
+    g = torch.Generator().manual_seed(5)
+    xx = torch.arange(192, dtype=torch.float64)
+    a = 20.0 + 200.0 * torch.rand(3, 1, 64, 192, generator=g, dtype=torch.float64)
+    d = 2.0 + 0.4 * torch.sin(xx / 30.0) + 0.03 * torch.cos(math.pi * xx)
+    d = d + 0.5 / a * torch.randn(a.shape, generator=g, dtype=a.dtype)  # sigma_D = k / A
+    m1 = suppression_from_data(d, a)
+    m20 = suppression_from_data(d, 20.0 * a)
+    assert m1.fusion.low == pytest.approx(m20.fusion.low / 20.0, rel=1e-6)
+    assert m1.fusion.high == pytest.approx(5.0 * m1.fusion.low, rel=1e-6)
+    # k = 0.5 m x A, median depth ~2 m: low = k / (0.04 D) ~ 6.2 in these units
+    assert 4.0 < m1.fusion.low < 9.0, m1.fusion.low
 
 
 def test_errors_name_what_was_given():

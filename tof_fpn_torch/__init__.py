@@ -41,6 +41,7 @@ _EXPORTS: dict[str, str] = {
     "filter_from_design": "build",
     "suppression_from_data": "build",
     "suppression_from_design": "build",
+    "fusion_from_data": "build",
     "Camera": "sim",
     "Scene": "sim",
     "Simulation": "sim",
@@ -51,6 +52,7 @@ _MODULES: dict[str, str] = {"metrics": "analysis.metrics"}
 _SUBPACKAGES = (
     "analysis",
     "build",
+    "cameras",
     "cli",
     "constants",
     "denoise",

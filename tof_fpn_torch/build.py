@@ -22,12 +22,15 @@ from torch import nn
 
 from . import constants as K
 from .analysis.stripes import StripeEstimate, estimate_stripes
+from .cameras import profile
+from .denoise import estimate_noise_k
 from .design import compensate_half_sample, design_fpn, max_rho
-from .runtime import AmplitudeFusion, FPNFilter, FPNSuppression
+from .runtime import AmplitudeFusion, FPNFilter, FPNSuppression, valid_mask
 
 __all__ = [
     "MAX_RIPPLE_DB",
     "filter_from_design",
+    "fusion_from_data",
     "suppression_from_data",
     "suppression_from_design",
 ]
@@ -100,8 +103,9 @@ def suppression_from_design(
     notches: Sequence[float] = K.DEFAULT_NOTCHES,
     dim: int | tuple[int, ...] = -1,
     adaptive: bool = True,
-    low: float = K.FUSION_LOW,
-    high: float = K.FUSION_HIGH,
+    camera: str | None = None,
+    low: float | None = None,
+    high: float | None = None,
     floor: float = K.FUSION_FLOOR,
     gate: bool = True,
     destripe: nn.Module | None = None,
@@ -112,8 +116,11 @@ def suppression_from_design(
     **kwargs,
 ) -> FPNSuppression:
     """Design taps and build an :class:`FPNSuppression`: notch filter, eq. (11) fusion (when
-    ``adaptive``; thresholds ``low``, ``high``, ``floor`` in the camera's amplitude units, CamCube's
-    by default), the stripe gate (when ``gate``), and an optional ``destripe`` module first.
+    ``adaptive``), the stripe gate (when ``gate``), and an optional ``destripe`` module first.
+
+    The fusion thresholds are in the camera's amplitude units: ``low`` / ``high`` when given, else
+    those of the ``camera`` profile (:mod:`tof_fpn_torch.cameras`), else CamCube's (the paper's 70
+    and 350). For a camera without a profile, measure them with :func:`fusion_from_data`.
 
     Defaults: Table I's best adaptive filter ``{20, 0.14}`` with notches at ``2pi/3`` and ``pi``,
     unit DC gain, gated. The paper's stage is ``suppression_from_design(unit_dc=False,
@@ -131,8 +138,53 @@ def suppression_from_design(
         dim=dim,
         **kwargs,
     )
-    fusion = AmplitudeFusion(low, high, floor) if adaptive else None
+    fusion = None
+    if adaptive:
+        lo, hi = _thresholds(camera, low, high)
+        fusion = AmplitudeFusion(lo, hi, floor)
     return FPNSuppression(filt, fusion, destripe=destripe, gate=gate)
+
+
+def _thresholds(camera: str | None, low: float | None, high: float | None) -> tuple[float, float]:
+    prof = profile(camera if camera is not None else "camcube")
+    lo = prof.fusion_low if low is None else low
+    hi = prof.fusion_high if high is None else high
+    if lo is None or hi is None:
+        raise ValueError(
+            f"camera profile {prof.name!r} has no fusion thresholds ({prof.source}); pass low= "
+            "and high=, or measure them with tof_fpn_torch.build.fusion_from_data"
+        )
+    return float(lo), float(hi)
+
+
+def fusion_from_data(
+    depth: torch.Tensor, amplitude: torch.Tensor, floor: float = K.FUSION_FLOOR
+) -> AmplitudeFusion:
+    """Eq. (11) fusion with thresholds measured on the data, in its own amplitude units.
+
+    Rule (:mod:`tof_fpn_torch.cameras`): fit the depth-noise law ``sigma_D = k / A`` (eq. 2;
+    :func:`~tof_fpn_torch.denoise.estimate_noise_k`, wavelet MAD over all frames' valid pixels)
+    and place ``low`` and ``high`` where the relative noise ``k / (A D)``, ``D`` the median valid
+    depth, is :data:`~tof_fpn_torch.constants.FUSION_LOW_RELATIVE_NOISE` (4 %) and
+    ``FUSION_HIGH_RELATIVE_NOISE`` (0.8 %): the paper's 70 / 350 on its own synthetic data.
+
+    Args:
+        depth, amplitude: (B, 1, H, W) frames of one camera (depth in any unit).
+        floor: the fusion's weight of the filtered depth for strong signals.
+
+    Raises:
+        ValueError: no valid pixel, or no noise measurable (``k = 0``).
+    """
+    valid = valid_mask(depth, amplitude)
+    if not bool(valid.any()):
+        raise ValueError("fusion_from_data: no valid pixel (depth > 0 finite, amplitude >= 0)")
+    k = float(estimate_noise_k(depth.double(), amplitude.double(), valid=valid).mean())
+    med = float(depth[valid].double().median())
+    if not (k > 0 and med > 0):
+        raise ValueError(f"fusion_from_data: cannot measure the noise law (k = {k}, D = {med})")
+    low = k / (K.FUSION_LOW_RELATIVE_NOISE * med)
+    high = k / (K.FUSION_HIGH_RELATIVE_NOISE * med)
+    return AmplitudeFusion(low, high, floor)
 
 
 def suppression_from_data(
@@ -140,36 +192,42 @@ def suppression_from_data(
     amplitudes: torch.Tensor | None = None,
     order: int = K.DEFAULT_ORDER,
     rho: float | None = None,
-    min_confidence: float = 0.5,
+    *,
+    false_alarm: float = 0.01,
     estimate_kwargs: dict | None = None,
     **kwargs,
 ) -> FPNSuppression:
-    """Design notches for the stripes :func:`~tof_fpn_torch.analysis.estimate_stripes` finds.
+    """A stage with the pieces the data call for (never one the data do not).
 
-    Components with ``confidence >= min_confidence`` are kept; their frequencies become the
-    notches, the orientations found set ``dim`` (both orientations share one notch set). ``rho``
-    defaults to ``min(DEFAULT_RHO, 0.9 max_rho)``. The estimate is kept in ``module.estimate``.
-
-    Raises:
-        ValueError: bad input, or no stripe found (the message lists the best candidates).
+    The periodic components :func:`~tof_fpn_torch.analysis.estimate_stripes` reports (false-alarm
+    probability ``<= false_alarm``, amplitude over its noise floor) become the notches, their
+    orientations ``dim`` (both orientations share one notch set; rho defaults to
+    ``min(DEFAULT_RHO, 0.9 max_rho)``). With amplitudes the fusion thresholds are measured too
+    (:func:`fusion_from_data`). When nothing is found the stage has no notch and returns its
+    input unchanged. The estimate is kept in ``module.estimate``; ``kwargs`` go to
+    :func:`suppression_from_design`.
     """
-    est: StripeEstimate = estimate_stripes(frames, amplitudes, **(estimate_kwargs or {}))
-    comps = [c for c in est.components if c.confidence >= min_confidence]
-    if not comps:
-        raise ValueError(
-            "no periodic stripes found with confidence >= "
-            f"{min_confidence} (components: {list(est.components)}); nothing to notch"
-        )
-    freqs = sorted({math.pi if abs(c.frequency - math.pi) < 1e-3 else c.frequency for c in comps})
+    est: StripeEstimate = estimate_stripes(
+        frames, amplitudes, false_alarm=false_alarm, **(estimate_kwargs or {})
+    )
+    if not est.components:
+        module = FPNSuppression(None, None, destripe=kwargs.get("destripe"))
+        module.estimate = est
+        return module
     merged: list[float] = []
-    for f in freqs:  # one notch for peaks closer than 0.02 rad
+    for f in sorted({c.frequency for c in est.components}):  # one notch for peaks < 0.02 rad apart
         if merged and f - merged[-1] < 0.02:
             continue
         merged.append(f)
-    dims = sorted({c.dim for c in comps})
+    dims = sorted({c.dim for c in est.components})
     if rho is None:
         rho = min(K.DEFAULT_RHO, 0.9 * max_rho(merged))
     kwargs.setdefault("dim", tuple(dims) if len(dims) > 1 else dims[0])
+    if amplitudes is None:
+        kwargs.setdefault("adaptive", False)
+    elif kwargs.get("adaptive", True) and "low" not in kwargs and "camera" not in kwargs:
+        fusion = fusion_from_data(frames, amplitudes)
+        kwargs.update(low=fusion.low, high=fusion.high)
     module = suppression_from_design(order, rho, notches=tuple(merged), **kwargs)
     module.estimate = est
     return module

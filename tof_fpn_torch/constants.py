@@ -45,6 +45,11 @@ FUSION_LOW: float = 70.0
 FUSION_HIGH: float = 350.0
 #: Weight of the filtered depth for strong signals.
 FUSION_FLOOR: float = 0.2
+#: The same thresholds in a unit-free form for any camera (tof_fpn_torch.cameras): the relative
+#: depth noise sigma_D(A) / D at which the fusion starts to ramp (4 %) and reaches its floor (0.8 %);
+#: on the paper's synthetic data (Table I's noise) these are amplitudes 70 and 350.
+FUSION_LOW_RELATIVE_NOISE: float = 0.04
+FUSION_HIGH_RELATIVE_NOISE: float = 0.008
 
 # --- the stripe gate of the FPN stage (runtime/gate.py; beyond the paper) -----------------------
 #: False-alarm probability of the gate's line test, per notch frequency and image.
