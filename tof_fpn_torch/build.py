@@ -193,7 +193,7 @@ def suppression_from_data(
     order: int = K.DEFAULT_ORDER,
     rho: float | None = None,
     *,
-    false_alarm: float = 0.01,
+    false_alarm: float = K.DETECTION_FALSE_ALARM,
     estimate_kwargs: dict | None = None,
     **kwargs,
 ) -> FPNSuppression:

@@ -62,6 +62,10 @@ GATE_REFERENCES: int = 8
 #: at ~0.03; the paper's synthetic FPN at ~0.3.)
 GATE_MIN_STRIPE: float = 0.1
 
+# --- stripe detection (analysis/stripes.py) ---------------------------------------------------
+#: Largest false-alarm probability of a reported periodic stripe (whole searched band).
+DETECTION_FALSE_ALARM: float = 0.01
+
 # --- the depth-domain FPN model (eq. 10, reconstructed; Sec. IV-B) -----------------------------
 FPN_ALPHA: float = -3.966
 FPN_BETA: float = 0.012

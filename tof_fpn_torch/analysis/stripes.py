@@ -232,7 +232,7 @@ def estimate_stripes(
     orientations: tuple[str, ...] = ("columns", "rows"),
     smooth: int = 8,
     min_frequency: float = 0.15 * math.pi,
-    false_alarm: float = 0.01,
+    false_alarm: float = K.DETECTION_FALSE_ALARM,
     min_stripe: float = K.GATE_MIN_STRIPE,
     max_components: int = 4,
 ) -> StripeEstimate:

@@ -3,10 +3,27 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+import inspect
+import os
 
 from ..experiments import run_demo
-from .reproduce import set_threads
+from ._common import (
+    MAX_SIZE,
+    MIN_SIZE,
+    check_output_dir,
+    float_arg,
+    int_arg,
+    join,
+    output_dirs,
+    report_created,
+    set_threads,
+    threads_arg,
+)
+
+#: ``--out`` when not given.
+DEFAULT_OUT = "demo_out"
+#: The defaults of :func:`tof_fpn_torch.experiments.run_demo` (the CLI's defaults).
+_DEMO = {k: v.default for k, v in inspect.signature(run_demo).parameters.items()}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,20 +34,52 @@ def register(sub: argparse._SubParsersAction) -> None:
         "filter {order, rho} + adaptive fusion -> NLM. Writes demo.png (ground truth, input, "
         "NLM only, filtered, filtered + NLM, with PSNR) and demo.json; prints a summary.",
     )
-    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output directory")
-    p.add_argument("--seed", type=int, default=0, help="scene seed (>= 0)")
-    p.add_argument("--size", type=int, default=204, help="scene side in pixels (>= 32)")
-    p.add_argument("--order", type=int, default=28, help="filter order (default 28)")
-    p.add_argument("--rho", type=float, default=0.13, help="transition width parameter (0.13)")
-    p.add_argument("--dpi", type=int, default=60, help="resolution of demo.png (default 60)")
-    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument(
+        "--out", default=DEFAULT_OUT, metavar="DIR", help="output directory (default %(default)s)"
+    )
+    p.add_argument(
+        "--seed", type=int_arg(0), default=_DEMO["seed"], help="scene seed (default %(default)s)"
+    )
+    p.add_argument(
+        "--size",
+        type=int_arg(MIN_SIZE, MAX_SIZE),
+        default=_DEMO["size"],
+        help=f"scene side in pixels, {MIN_SIZE} to {MAX_SIZE} (default %(default)s)",
+    )
+    p.add_argument(
+        "--order", type=int_arg(), default=_DEMO["order"], help="filter order (default %(default)s)"
+    )
+    p.add_argument(
+        "--rho",
+        type=float_arg(0.0, open_lo=True),
+        default=_DEMO["rho"],
+        help="transition half-width / pi (default %(default)s)",
+    )
+    p.add_argument(
+        "--dpi",
+        type=int_arg(),
+        default=_DEMO["dpi"],
+        help="resolution of demo.png (default %(default)s)",
+    )
+    p.add_argument(
+        "--threads",
+        type=threads_arg(),
+        default=1,
+        help="torch CPU threads, at most the CPU count (default %(default)s)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir("--out", args.out)
     set_threads(args.threads)
-    res = run_demo(
-        args.out, seed=args.seed, size=args.size, order=args.order, rho=args.rho, dpi=args.dpi
-    )
+    with output_dirs(args.out) as created:
+        res = run_demo(
+            args.out, seed=args.seed, size=args.size, order=args.order, rho=args.rho, dpi=args.dpi
+        )
+    # the files run_demo wrote, under the directory as the user wrote it
+    res.paths = {k: join(args.out, os.path.basename(v)) for k, v in res.paths.items()}
+    report_created(created)
     print(res.summary())
+    print(f"wrote {res.paths['png']}, {res.paths['json']}")
     return 0

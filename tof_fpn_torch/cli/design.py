@@ -5,13 +5,23 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
-from pathlib import Path
+from fractions import Fraction
 
 import numpy as np
 
 from ..constants import DEFAULT_NOTCHES
-from ..design import design_fpn, fixed_zero_taps
+from ..design import MAX_ORDER, design_fpn, fixed_zero_taps, max_rho
+from ..design.bands import check_notches
+from ._common import (
+    UsageError,
+    check_output_file,
+    float_arg,
+    int_arg,
+    output_dirs,
+    report_created,
+)
 
 _FREQ = re.compile(r"^\s*([0-9.eE+-]*)\s*\*?\s*(pi)?\s*(?:/\s*([0-9.eE+-]+))?\s*$")
 
@@ -33,7 +43,50 @@ def parse_frequency(text: str) -> float:
             value /= float(m.group(3))
     except (ValueError, ZeroDivisionError) as exc:
         raise argparse.ArgumentTypeError(f"notch {text!r} is not a frequency") from exc
+    try:
+        check_notches([value])
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"notch {text!r} = {value:g} rad/sample: a notch must lie in (0, pi]"
+        ) from None
     return value
+
+
+def format_frequency(w: float) -> str:
+    """``2pi/3``, ``pi``, ``0.4pi``: ``w`` (radians) as a multiple of pi, as :func:`parse_frequency`
+    reads it back."""
+    frac = Fraction(w / math.pi).limit_denominator(12)
+    if not math.isclose(float(frac) * math.pi, w, rel_tol=1e-12):
+        return f"{w:.6g}"
+    num = "" if frac.numerator == 1 else str(frac.numerator)
+    return f"{num}pi" + ("" if frac.denominator == 1 else f"/{frac.denominator}")
+
+
+def format_notches(notches) -> str:
+    return ", ".join(format_frequency(float(w)) for w in notches)
+
+
+def check_rho_fits(rho: float, notches) -> None:
+    """``UsageError`` naming ``--rho`` when its transition bands would overlap around ``notches``
+    (the bound is :func:`tof_fpn_torch.design.max_rho`); invalid notches raise its ValueError."""
+    limit = max_rho(notches)
+    if rho > limit * (1 + 1e-12):
+        raise UsageError(
+            f"--rho {rho:g} is too large for the notches {format_notches(sorted(notches))}: "
+            f"rho must lie in (0, {limit:.6g}] (wider transition bands would overlap)"
+        )
+
+
+def min_order(notches=DEFAULT_NOTCHES) -> int:
+    """Smallest order :func:`design_fpn` accepts for ``notches``: that of their fixed zeros."""
+    return int(fixed_zero_taps(notches).size - 1)
+
+
+def plot_suffixes() -> tuple[str, ...]:
+    """The file name endings matplotlib can save a figure as (``.png``, ``.pdf``, ...)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return tuple(sorted(f".{ext}" for ext in FigureCanvasBase.get_supported_filetypes()))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,48 +97,74 @@ def register(sub: argparse._SubParsersAction) -> None:
         "passband (Georgiev et al., IEEE SAS 2015, Sec. III), write its taps and report ripple, "
         "group delay and notch depths.",
     )
-    p.add_argument("--order", type=int, required=True, help="filter order N (N + 1 taps)")
-    p.add_argument("--rho", type=float, required=True, help="transition half-width / pi (eq. 8)")
+    p.add_argument(
+        "--order",
+        type=int_arg(),
+        required=True,
+        help=f"filter order N (N + 1 taps): from {min_order()} (the fixed zeros of the default "
+        f"notches) to {MAX_ORDER}",
+    )
+    p.add_argument(
+        "--rho",
+        type=float_arg(0.0, open_lo=True),
+        required=True,
+        help="transition half-width / pi (eq. 8): in (0, "
+        f"{max_rho(DEFAULT_NOTCHES):.6g}] for the default notches",
+    )
     p.add_argument(
         "--notch",
         type=parse_frequency,
         action="append",
         metavar="W",
-        help="notch frequency in rad/sample, e.g. 2pi/3 (repeat; default 2pi/3 and pi)",
+        help="notch frequency in rad/sample, e.g. 2pi/3 (repeat; default "
+        f"{format_notches(DEFAULT_NOTCHES)})",
     )
     p.add_argument(
         "--band-weight",
-        type=float,
+        type=float_arg(0.0, open_lo=True),
         action="append",
         metavar="W",
         help="relative ripple weight of each passband (repeat once per band; default equal)",
     )
-    p.add_argument("--out", type=Path, required=True, help="output taps file (.npy, float64)")
-    p.add_argument("--plot", type=Path, help="write the magnitude response (Fig. 6 style) here")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="FILE.npy",
+        help="output taps file, NumPy .npy (float64), written under exactly this name",
+    )
+    p.add_argument(
+        "--plot",
+        metavar="FILE",
+        help="write the magnitude response (Fig. 6 style) here; the suffix sets the format "
+        "(.png, .pdf, .svg, ...)",
+    )
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    design = design_fpn(
-        args.order,
-        args.rho,
-        notches=tuple(args.notch) if args.notch else DEFAULT_NOTCHES,
-        band_weights=args.band_weight,
-    )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    np.save(args.out, design.taps)
-    if args.plot:
-        from ..design.plot import plot_response
+    check_output_file("--out", args.out, (".npy",))
+    if args.plot is not None:
+        check_output_file("--plot", args.plot, plot_suffixes())
+    notches = tuple(args.notch) if args.notch else DEFAULT_NOTCHES
+    check_rho_fits(args.rho, notches)
+    design = design_fpn(args.order, args.rho, notches=notches, band_weights=args.band_weight)
+    with output_dirs(os.path.dirname(args.out), os.path.dirname(args.plot or "")) as created:
+        with open(args.out, "wb") as fh:  # a file object: NumPy appends no ".npy"
+            np.save(fh, design.taps)
+        if args.plot is not None:
+            from ..design.plot import plot_response
 
-        plot_response(design, args.plot)
+            plot_response(design, args.plot)
     report = design.summary()
-    report["out"] = str(args.out)
-    if args.plot:
-        report["plot"] = str(args.plot)
+    report["out"] = args.out
+    if args.plot is not None:
+        report["plot"] = args.plot
     if args.json:
+        report["created"] = created
         print(json.dumps(report, indent=2))
         return 0
+    report_created(created)
     print(f"FPN notch filter: order {design.order} ({design.taps.size} taps), rho {design.rho:g}")
     print(f"  passband ripple : delta = {design.ripple:.4e}  ({design.ripple_db:.2f} dB)")
     for k, ((lo, hi), r) in enumerate(zip(design.bands, design.band_ripples, strict=True)):
@@ -101,6 +180,6 @@ def run(args: argparse.Namespace) -> int:
             "lies below float64 precision (ripple < RIPPLE_FLOOR)"
         )
     print(f"  taps written to : {args.out}")
-    if args.plot:
+    if args.plot is not None:
         print(f"  response plot   : {args.plot}")
     return 0

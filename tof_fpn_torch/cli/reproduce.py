@@ -6,88 +6,164 @@ Thin wrapper over :mod:`tof_fpn_torch.experiments`; see docs/experiments.md.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+import inspect
 
+from .. import constants as K
 from .. import experiments as E
+from ._common import (
+    MAX_SIZE,
+    MIN_H,
+    MIN_SIZE,
+    UsageError,
+    check_output_dir,
+    float_arg,
+    int_arg,
+    join,
+    output_dirs,
+    report_created,
+    set_threads,
+    threads_arg,
+)
 
 #: ``--quick``: one small scene and (fig9) a coarse grid.
 QUICK_SIZE = 128
 QUICK_SEEDS = (0,)
+#: ``--out`` when not given.
+DEFAULT_OUT = "reproduce_out"
+
+#: The defaults of the experiments (what runs without ``--seeds`` / ``--size`` / ``--case``).
+_TABLE1 = inspect.signature(E.run_table1).parameters
+_FIG9 = inspect.signature(E.run_fig9).parameters
+#: Options that only one experiment reads (refused for the other).
+_ONLY = {"case": "fig9", "compensate_delay": "table1"}
 
 
 def _seeds(text: str) -> tuple[int, ...]:
     try:
         seeds = tuple(int(s) for s in text.split(",") if s.strip())
     except ValueError:
+        seeds = ()
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
         raise argparse.ArgumentTypeError(
-            f"--seeds must be comma-separated ints >= 0, got {text!r}"
-        ) from None
-    if not seeds or min(seeds) < 0:
-        raise argparse.ArgumentTypeError(f"--seeds must be comma-separated ints >= 0, got {text!r}")
+            f"must be distinct comma-separated ints >= 0, e.g. 0,1,2, got {text!r}"
+        )
     return seeds
+
+
+def _default(name: str) -> str:
+    """The default of ``name`` in both experiments, as help text."""
+    a, b = _TABLE1[name].default, _FIG9[name].default
+    fmt = (lambda v: ",".join(map(str, v))) if name == "seeds" else str
+    return fmt(a) if a == b else f"table1 {fmt(a)}, fig9 {fmt(b)}"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reproduce",
         help="reproduce the paper's synthetic experiment (Table I, Fig. 9)",
-        description="Synthetic scene -> eq. (10) FPN (+ eq. (2) noise at 21.26 dB) -> FPN notch "
+        description="Synthetic scene -> eq. (10) FPN (+ eq. (2) noise at "
+        f"{K.PAPER_INPUT_PSNR['fpn+noise']:g} dB) -> FPN notch "
         "filter (+ eq. (11) fusion) -> NLM -> PSNR; writes CSV, JSON, Markdown (ours beside the "
         "paper) and PNG into --out.",
     )
     p.add_argument("experiment", choices=("table1", "fig9"), help="which result to reproduce")
+    quick_seeds = ",".join(map(str, QUICK_SEEDS))
     p.add_argument(
         "--quick",
         action="store_true",
-        help=f"one {QUICK_SIZE}x{QUICK_SIZE} scene (fig9: coarse grid); seconds",
+        help=f"seed(s) {quick_seeds} at {QUICK_SIZE}x{QUICK_SIZE} (fig9: odd orders "
+        f"{', '.join(map(str, E.QUICK_ODD_ORDERS))}, even orders "
+        f"{', '.join(map(str, E.QUICK_EVEN_ORDERS))}, rho "
+        f"{', '.join(f'{r:g}' for r in E.QUICK_RHOS)}); seconds",
     )
-    p.add_argument("--out", type=Path, required=True, help="output directory")
-    p.add_argument("--seeds", type=_seeds, help="scene seeds, e.g. 0,1,2 (default 0,1,2; quick: 0)")
-    p.add_argument("--size", type=int, help="scene side in pixels (default 204; quick: 96)")
-    p.add_argument("--h", type=float, default=E.NLMSettings.h, help="NLM h relative to sigma")
-    p.add_argument("--patch-size", type=int, default=E.NLMSettings.patch_size)
-    p.add_argument("--patch-distance", type=int, default=E.NLMSettings.patch_distance)
-    p.add_argument("--case", choices=E.CASES, default="fpn+noise", help="fig9 input case")
+    p.add_argument(
+        "--out", default=DEFAULT_OUT, metavar="DIR", help="output directory (default %(default)s)"
+    )
+    p.add_argument(
+        "--seeds",
+        type=_seeds,
+        help=f"scene seeds, e.g. 0,1,2 (default {_default('seeds')}; --quick: {quick_seeds})",
+    )
+    p.add_argument(
+        "--size",
+        type=int_arg(MIN_SIZE, MAX_SIZE),
+        help=f"scene side in pixels, {MIN_SIZE} to {MAX_SIZE} (default {_default('size')}; "
+        f"--quick: {QUICK_SIZE})",
+    )
+    nlm = E.NLMSettings()
+    p.add_argument(
+        "--h",
+        type=float_arg(MIN_H),
+        default=nlm.h,
+        help="NLM h relative to sigma (default %(default)s)",
+    )
+    p.add_argument(
+        "--patch-size",
+        type=int_arg(1),
+        default=nlm.patch_size,
+        help="NLM patch side, odd, at most --size (default %(default)s)",
+    )
+    p.add_argument(
+        "--patch-distance",
+        type=int_arg(0),
+        default=nlm.patch_distance,
+        help="NLM search radius, below --size (default %(default)s)",
+    )
+    p.add_argument(
+        "--case",
+        choices=E.CASES,
+        help=f"fig9 only: input case (default {_FIG9['case'].default})",
+    )
     p.add_argument(
         "--compensate-delay",
         action="store_true",
-        help="table1: compensate the half-sample delay of odd orders",
+        help="table1 only: compensate the half-sample delay of odd orders",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
         "--threads",
-        type=int,
+        type=threads_arg(),
         default=1,
-        help="torch CPU threads (default 1: the images are small, and 1 thread does not "
-        "stall when another job holds the other core)",
+        help="torch CPU threads, at most the CPU count (default %(default)s: the images are small, "
+        "and 1 thread does not stall when another job holds the other core)",
     )
     p.set_defaults(func=run)
 
 
-def set_threads(n: int) -> None:
-    """``torch.set_num_threads(n)`` after checking ``n >= 1``."""
-    import torch
-
-    if n < 1:
-        raise ValueError(f"--threads must be >= 1, got {n}")
-    torch.set_num_threads(n)
-
-
 def run(args: argparse.Namespace) -> int:
+    for name, experiment in _ONLY.items():
+        if getattr(args, name) not in (None, False) and args.experiment != experiment:
+            raise UsageError(
+                f"--{name.replace('_', '-')} applies to {experiment} only, not {args.experiment}"
+            )
+    check_output_dir("--out", args.out)
+    kw = {}
+    if args.seeds is not None or args.quick:
+        kw["seeds"] = args.seeds if args.seeds is not None else QUICK_SEEDS
+    if args.size is not None or args.quick:
+        kw["size"] = args.size if args.size is not None else QUICK_SIZE
+    size = kw.get("size", (_TABLE1 if args.experiment == "table1" else _FIG9)["size"].default)
+    if args.patch_size > size:
+        raise UsageError(
+            f"--patch-size must be at most the scene side {size}, got {args.patch_size}"
+        )
+    if args.patch_distance >= size:
+        raise UsageError(
+            f"--patch-distance must be below the scene side {size}, got {args.patch_distance}"
+        )
     set_threads(args.threads)
-    seeds = args.seeds or (QUICK_SEEDS if args.quick else (0, 1, 2))
-    size = args.size or (QUICK_SIZE if args.quick else 204)
     nlm = E.NLMSettings(args.patch_size, args.patch_distance, args.h).validate()
     progress = not args.no_progress
     if args.experiment == "table1":
         result = E.run_table1(
-            seeds,
-            size,
             nlm=nlm,
             compensate_delay=args.compensate_delay,
             progress=progress,
+            **kw,
         )
-        paths = E.write_table1(result, args.out)
+        with output_dirs(args.out) as created:
+            paths = E.write_table1(result, args.out)
+        report_created(created)
         for c in E.CASES:
             rows = [r for r in result["rows"] if r["case"] == c]
             best = max(rows, key=lambda r: r["nlm_adaptive"])
@@ -99,20 +175,22 @@ def run(args: argparse.Namespace) -> int:
                 f"({best['gain_adaptive']:+.2f})"
             )
     else:
-        kw = {}
         if args.quick:
-            kw = {
-                "odd_orders": E.QUICK_ODD_ORDERS,
-                "even_orders": E.QUICK_EVEN_ORDERS,
-                "rhos": E.QUICK_RHOS,
-            }
-        result = E.run_fig9(seeds, size, nlm=nlm, case=args.case, progress=progress, **kw)
-        paths = E.write_fig9(result, args.out)
+            kw.update(
+                odd_orders=E.QUICK_ODD_ORDERS, even_orders=E.QUICK_EVEN_ORDERS, rhos=E.QUICK_RHOS
+            )
+        if args.case is not None:
+            kw["case"] = args.case
+        result = E.run_fig9(nlm=nlm, progress=progress, **kw)
+        with output_dirs(args.out) as created:
+            paths = E.write_fig9(result, args.out)
+        report_created(created)
         print(
             f"{E.CASE_LABELS[result['case']]}: input {result['input_psnr']:.2f} dB, NLM not "
             f"filtered {result['nlm_unfiltered']:.2f} dB"
         )
         for name, b in result["best"].items():
             print(f"  best {name:18s}: {{{b['order']}, {b['rho']:g}}} {b['psnr']:.2f} dB")
-    print(f"wrote {', '.join(str(p) for p in paths.values())} ({result['seconds']:.1f} s)")
+    written = ", ".join(join(args.out, p.name) for p in paths.values())
+    print(f"wrote {written} ({result['seconds']:.1f} s)")
     return 0
