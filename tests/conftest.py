@@ -13,6 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hypothesis import settings
+
+# property tests are seeded: the same examples on every run (no example database)
+settings.register_profile("seeded", derandomize=True, database=None)
+settings.load_profile("seeded")
 
 #: the repository root is the parent of tests/; the shared data sit beside the repository
 REPO_ROOT = Path(__file__).resolve().parents[1]
