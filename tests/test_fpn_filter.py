@@ -13,7 +13,7 @@ import scipy.ndimage as ndi
 import torch
 
 from tof_fpn_torch import FPNFilter, design_fpn
-from tof_fpn_torch.build import filter_from_design
+from tof_fpn_torch.build import filter_from_design, suppression_from_design
 from tof_fpn_torch.design import half_sample_taps, zero_phase_response
 from tof_fpn_torch.runtime import fpn_filter, valid_mask
 from tof_fpn_torch.runtime.fir import fir_last, fir_operators, fir_polyphase
@@ -356,3 +356,15 @@ def test_errors_name_what_was_given(design20):
         FPNFilter(design20.taps, dim=1)
     with pytest.raises(ValueError, match="1-D"):
         FPNFilter(np.ones((2, 2)))
+
+
+def test_modules_can_be_built_and_run_in_inference_mode(design20):
+    """Building the stage inside ``torch.inference_mode()`` (a serving process that never needs
+    autograd) works and gives the same output as a module built outside it."""
+    x = _scene(1, 8, 40).float()
+    ref = FPNFilter(design20.taps)(x)
+    with torch.inference_mode():
+        f = FPNFilter(design20.taps)
+        torch.testing.assert_close(f(x), ref, rtol=0, atol=0)
+        stage = suppression_from_design()
+        assert stage(x, torch.full_like(x, 100.0)).shape == x.shape
