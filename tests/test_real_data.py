@@ -161,9 +161,10 @@ def test_filter_output_within_the_interval_its_taps_allow(inputs, outputs, fpn):
         low, high = pos * lo - neg * hi - tol, pos * hi - neg * lo + tol
         out = out.double()
         assert bool(((out >= low) & (out <= high))[valid].all()), name
-    # the bound is not vacuous: on the wall the filter does change the depth (mm)
+    # the bound is not vacuous: on the wall the filter does move pixels by millimetres
     d, wall = inputs[FRAMES][0][:1], outputs[FRAMES]["filter"][:1]
-    assert float((wall - d)[valid_mask(d)].abs().median()) > 1.0
+    change = (wall - d)[valid_mask(d)].abs()
+    assert float((change > 0.5).double().mean()) > 0.02
 
 
 def test_suppression_and_fusion_move_each_pixel_by_delta_towards_the_filtered_depth(
