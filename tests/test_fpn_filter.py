@@ -6,13 +6,14 @@ from __future__ import annotations
 import importlib
 import math
 
+import cv2
 import numpy as np
 import pytest
 import scipy.ndimage as ndi
 import torch
 
 from tof_fpn_torch import FPNFilter, design_fpn
-from tof_fpn_torch.build import filter_from_design
+from tof_fpn_torch.build import filter_from_design, suppression_from_design
 from tof_fpn_torch.design import half_sample_taps, zero_phase_response
 from tof_fpn_torch.runtime import fpn_filter, valid_mask
 from tof_fpn_torch.runtime.fir import fir_last, fir_operators, fir_polyphase
@@ -78,8 +79,7 @@ def test_polyphase_path_matches_scipy(border, order, shape, design20, design41):
     taps = {1: np.array([0.6, 0.4]), 2: np.array([0.3, 0.5, 0.2])}.get(order)
     if taps is None:
         taps = (design20 if order == 20 else design41).taps
-    if shape[-1] < taps.size:
-        pytest.skip("narrower than the filter: blocked path")
+    assert shape[-1] >= taps.size  # every shape reaches the polyphase path (width >= L)
     g = torch.Generator().manual_seed(shape[-1])
     x = 1.0 + torch.rand(shape, generator=g)
     ref = ndi.convolve1d(x.double().numpy(), taps, axis=-1, mode=SCIPY_MODE[border])
@@ -127,7 +127,6 @@ def test_float32_matches_float64_numpy_reference(design41):
 
 
 def test_matches_opencv_filter2d(design41):
-    cv2 = pytest.importorskip("cv2")
     x = _scene(1, 50, 300).float() + 0.01 * torch.randn(1, 1, 50, 300)
     taps = design41.taps
     kernel = taps[::-1].astype(np.float32).reshape(1, -1).copy()
@@ -359,3 +358,15 @@ def test_errors_name_what_was_given(design20):
         FPNFilter(design20.taps, dim=1)
     with pytest.raises(ValueError, match="1-D"):
         FPNFilter(np.ones((2, 2)))
+
+
+def test_modules_can_be_built_and_run_in_inference_mode(design20):
+    """Building the stage inside ``torch.inference_mode()`` (a serving process that never needs
+    autograd) works and gives the same output as a module built outside it."""
+    x = _scene(1, 8, 40).float()
+    ref = FPNFilter(design20.taps)(x)
+    with torch.inference_mode():
+        f = FPNFilter(design20.taps)
+        torch.testing.assert_close(f(x), ref, rtol=0, atol=0)
+        stage = suppression_from_design()
+        assert stage(x, torch.full_like(x, 100.0)).shape == x.shape

@@ -32,8 +32,13 @@ def test_fpn_is_a_quarter_at_very_low_amplitude_and_under_5_percent_above_300():
     assert 0.24 <= float(k[0]) <= 0.26
     assert float(k[a >= 300].max()) < 0.05
     assert bool((k[1:] < k[:-1]).all())  # falls monotonically with amplitude
-    # the constants are the paper's
-    assert (FPN_ALPHA, FPN_BETA, FPN_GAMMA) == (-3.966, 0.012, 5.25)
+    # k(A) = sqrt(beta gamma) exp(alpha A / (2 A_ref)), A_ref = 300: each parameter acts so
+    ref = math.sqrt(FPN_BETA * FPN_GAMMA) * torch.exp(FPN_ALPHA * a / 600.0)
+    torch.testing.assert_close(k, ref, rtol=1e-12, atol=0)
+    torch.testing.assert_close(fpn_intensity(a, alpha=2 * FPN_ALPHA), k * k / k[0])
+    torch.testing.assert_close(fpn_intensity(a, beta=4 * FPN_BETA), 2 * k)
+    torch.testing.assert_close(fpn_intensity(a, gamma=FPN_GAMMA / 4), k / 2)
+    torch.testing.assert_close(fpn_intensity(2 * a, amplitude_ref=600.0), k)
 
 
 def test_fpn_in_depth_has_those_shares():

@@ -10,12 +10,15 @@ Method, per orientation (columns: profiles along the width; rows: along the heig
 1. Valid pixels (:func:`~tof_fpn_torch.runtime.valid_mask`) get weight ``1 / (1 + A / median A)``
    (FPN dominates where the amplitude is low, Sec. IV-B; unit-free, so any camera's amplitude
    scale works); without amplitude all weigh 1.
-2. Each line is high-passed by its running median: ``r = d - median(d)`` over ``2 smooth + 1``
-   samples (kornia's ``median_blur``; holes filled from their valid neighbours first). A median
-   keeps step edges, so vertical scene edges leave (almost) no residual; residuals beyond 4 robust
-   sigmas (``1.4826 MAD``) are dropped (thin objects, corners).
+2. Each line is high-passed: ``r = d - box(d)`` (kornia's box filter over ``2 smooth + 1`` valid
+   samples; a linear filter, so the stripe's gain ``1 - B(w)`` is known and divided out of its
+   strength). Pixels within the box's reach of a scene edge (a central difference beyond 4 robust
+   sigmas) and residuals beyond 4 robust sigmas (``1.4826 MAD``) are dropped. (A running median
+   keeps steps without that, but its gain on a stripe depends on the local slope of the scene, up
+   to 1.5x at ``2pi/3``: it biases the strength.)
 3. One profile: the weighted mean of ``r`` down every column, over all frames (a fixed pattern is
-   the same in every frame), minus its mean.
+   the same in every frame), minus its mean; columns where the profile is an outlier (what is left
+   of a vertical edge spanning the frame, a thin object) are left out.
 4. Its Hann-windowed spectrum on a grid 8x finer than the DFT bins (zero padding), so a line between
    bins (any odd width, ``pi`` for odd widths) is found where it is. Every local maximum above
    ``min_frequency`` is a candidate; its frequency is refined by a parabola through the log power.
@@ -28,7 +31,7 @@ Method, per orientation (columns: profiles along the width; rows: along the heig
 6. **Floor in depth units**: its amplitude ``a`` (from ``P(f) - mean P(references)``) must be at
    least ``min_stripe`` (:data:`~tof_fpn_torch.constants.GATE_MIN_STRIPE`, the run-time gate's
    rule) times the data's own per-pixel noise ``sigma`` (the robust sigma of ``r``, corrected for
-   the median filter): a stripe whose power is under 1 % of the noise is not reported.
+   the box filter): a stripe whose power is under 1 % of the noise is not reported.
 7. **Snapping**: a frequency within half a DFT bin of a known FPN frequency
    (:data:`~tof_fpn_torch.constants.FPN_FREQUENCIES`: ``2pi/3``, ``pi``) is set to it exactly.
 """
@@ -40,6 +43,7 @@ from dataclasses import dataclass, field
 
 import kornia.filters as KF
 import torch
+import torch.nn.functional as F
 
 from .. import constants as K
 from ..runtime._checks import check_image, check_same_shape
@@ -95,61 +99,63 @@ class StripeEstimate:
         return tuple(sorted({c.dim for c in self.components}))
 
 
-def _ring_median(x: torch.Tensor, half: int) -> torch.Tensor:
-    """Median of the ``2 half`` neighbours of every sample along the last axis, the sample itself
-    left out (reflected ends). Hand-written rather than kornia's ``median_blur``: an odd window
-    (kornia's only kind) has a majority of the centre's phase of a period-2 pattern and reproduces a
-    stripe at ``pi`` exactly, so ``d - median`` would erase it; an even count of neighbours
-    centred on the sample does not (its median of ``+-a`` alternating is 0)."""
-    n = x.shape[-1]
-    h = min(half, n - 1)
-    if h < 1:
-        return x
-    idx = torch.arange(-h, n + h, device=x.device)
-    idx = torch.where(idx < 0, -idx, idx)
-    idx = torch.where(idx > n - 1, 2 * (n - 1) - idx, idx)
-    win = x.index_select(-1, idx).unfold(-1, 2 * h + 1, 1)  # (..., n, 2h + 1)
-    ring = torch.cat([win[..., :h], win[..., h + 1 :]], -1).sort(-1).values
-    return 0.5 * (ring[..., h - 1] + ring[..., h])
-
-
 def _profile(
     d: torch.Tensor, valid: torch.Tensor, w: torch.Tensor, smooth: int
-) -> tuple[torch.Tensor, float]:
-    """The weighted, outlier-free mean of the high-passed lines (profile axis last), and the
-    per-pixel noise sigma."""
+) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """The weighted, outlier-free mean of the high-passed lines (profile axis last), the columns
+    it has, and the per-pixel noise sigma."""
     v = valid.to(d.dtype)
-    size = (1, 2 * smooth + 1)
-    # holes filled from their valid neighbours (kornia box filter, zero padding outside), then a
-    # running median along each line: it keeps step edges, so a vertical scene edge leaves no
-    # residual to be taken for a column offset
+    size = (1, 2 * smooth + 1)  # kornia's box filter along each line over the valid samples
     num = KF.box_blur((d * v).unsqueeze(1), size, border_type="constant").squeeze(1)
     den = KF.box_blur(v.unsqueeze(1), size, border_type="constant").squeeze(1)
-    filled = torch.where(valid, d, num / den.clamp_min(1e-12))
-    filled = torch.where(den > 0, filled, (d * v).sum() / v.sum().clamp_min(1.0))
-    r = torch.where(valid, d - _ring_median(filled, smooth), torch.zeros_like(d))
+    r = torch.where(valid, d - num / den.clamp_min(0.5 / (2 * smooth + 1)), torch.zeros_like(d))
     mad = float(r[valid].abs().median()) if bool(valid.any()) else 0.0
     sigma = K.MAD_TO_SIGMA * mad
     keep = valid & (r.abs() <= 4.0 * sigma) if sigma > 0 else valid
+    # pixels within the box's reach of a scene edge (a central difference beyond 4 robust sigmas
+    # of all central differences) carry the edge's residual: leave them out
+    grad = torch.zeros_like(d)
+    grad[..., 1:-1] = (d[..., 2:] - d[..., :-2]).abs()
+    pair = torch.zeros_like(valid)
+    pair[..., 1:-1] = valid[..., 2:] & valid[..., :-2]
+    if bool(pair.any()):
+        g_sigma = K.MAD_TO_SIGMA * float(grad[pair].median())
+        edge = (pair & (grad > 4.0 * g_sigma)).to(d.dtype).unsqueeze(1)
+        near = F.max_pool2d(edge, (1, 2 * smooth + 1), 1, (0, smooth)).squeeze(1) > 0
+        keep = keep & ~near
     wk = torch.where(keep, w, torch.zeros_like(w))
     wsum = wk.sum((0, 1))  # over frames and lines
     p = (wk * r).sum((0, 1)) / wsum.clamp_min(1e-30)
     has = wsum > 0
     if bool(has.any()):
-        # columns where the profile is an outlier (the residual of a vertical scene edge or a thin
-        # object spanning the frame, broadband) are left out of the spectrum
-        dev = (p - p[has].median()).abs()
-        has = has & (dev <= 4.0 * K.MAD_TO_SIGMA * dev[has].median().clamp_min(1e-30))
+        # columns where the profile is an outlier (what is left of a vertical scene edge or a
+        # thin object spanning the frame, broadband) are left out of the spectrum. The scale is a
+        # clipped mean |p - mean| (not a MAD: a stripe at pi makes the profile two-valued, and
+        # the MAD of a two-valued profile is 0)
+        dev = (p - p[has].mean()).abs()
+        scale = 1.2533 * float(dev[has].mean())
+        for _ in range(3):
+            inside = has & (dev <= 3.0 * scale)
+            scale = float(dev[inside].mean()) / 0.786619 if bool(inside.any()) else scale
+        has = has & (dev <= 5.0 * scale)
     p = torch.where(has, p - p[has].mean() if bool(has.any()) else p, torch.zeros_like(p))
-    # r = d - median(d): white noise keeps about (1 - 1/n) of its variance (the median of n
-    # samples varies like a mean of 2 n / pi)
-    noise = sigma / math.sqrt(1.0 - math.pi / (2.0 * (2 * smooth + 1)))
-    return p, noise
+    # r = d - box(d): white noise keeps (1 - 1/n) of its variance
+    noise = sigma / math.sqrt(1.0 - 1.0 / (2 * smooth + 1))
+    return p, has, noise
+
+
+def _box_gain(w: float, length: int) -> float:
+    """``|1 - B(w)|``: the gain of ``d - box(d)`` (box of ``length`` samples) at ``w``."""
+    s = math.sin(w / 2.0)
+    b = 1.0 if abs(s) < 1e-12 else math.sin(length * w / 2.0) / (length * s)
+    return abs(1.0 - b)
 
 
 def _analyse(
     p: torch.Tensor,
+    has: torch.Tensor,
     noise: float,
+    box: int,
     orientation: str,
     dim: int,
     min_frequency: float,
@@ -163,7 +169,7 @@ def _analyse(
     window = torch.hann_window(n, periodic=False, dtype=p.dtype, device=p.device)
     spec = torch.fft.rfft(p * window, n=pad)
     power = (spec.real**2 + spec.imag**2).cpu().double()
-    wsum = float(window.sum())
+    wsum = float((window * has).sum())  # the window over the columns present (gaps left out)
     pw = power.tolist()
     last = len(pw) - 1
     df = 2 * math.pi / pad  # grid step
@@ -181,13 +187,20 @@ def _analyse(
             break
         if any(abs(j - t) < 2.5 * fine for t in taken):
             continue
+
+        def usable(i: int) -> bool:
+            return 0 < i < last and all(abs(i - t) >= 2.5 * fine for t in taken)
+
+        # references in pairs on both sides, so a sloping background does not bias T; one-sided
+        # only next to pi, where nothing lies beyond
         refs = []
         for k in _REF_BINS:
-            for sign in (-1, 1):
-                i = int(round(j + sign * k * fine))
-                if 0 < i < last and all(abs(i - t) >= 2.5 * fine for t in taken):
-                    refs.append(i)
-        refs = sorted(refs, key=lambda i: abs(i - j))[:_MAX_REFS]
+            lo, hi = int(round(j - k * fine)), int(round(j + k * fine))
+            if usable(lo) and usable(hi):
+                refs += [lo, hi]
+            elif usable(lo) and j * df > math.pi - 3 * (2 * math.pi / n):
+                refs.append(lo)
+        refs = refs[:_MAX_REFS]
         if len(refs) < 2:
             continue
         ref = sum(pw[i] for i in refs) / len(refs)
@@ -205,7 +218,7 @@ def _analyse(
             if abs(freq - w0) < 0.5 * (2 * math.pi / n):
                 freq = w0
         scale = 1.0 if abs(freq - math.pi) < 0.5 * (2 * math.pi / n) else 0.5
-        amp = math.sqrt(max(pw[j] - ref, 0.0)) / (scale * wsum)
+        amp = math.sqrt(max(pw[j] - ref, 0.0)) / (scale * wsum * max(_box_gain(freq, box), 1e-3))
         if p_fa > false_alarm_max or amp < min_stripe * noise:
             continue
         taken.append(j)
@@ -243,7 +256,7 @@ def estimate_stripes(
             of depth and amplitude) are ignored. The frames share one fixed pattern.
         amplitude: (B, 1, H, W) or None (uniform weights).
         orientations: any of ``"columns"`` (periodic along the width), ``"rows"``.
-        smooth: half-width of the per-line running median removed before averaging (>= 1).
+        smooth: half-width of the per-line box filter removed before averaging (>= 1).
         min_frequency: lowest frequency searched, radians/sample in ``(0, pi)``; lower ones are
             scene structure, and a notch there would remove scene content.
         false_alarm: largest false-alarm probability of a reported component, in ``(0, 1)``.
@@ -303,9 +316,21 @@ def estimate_stripes(
             dd, vv, ww, dim = d.transpose(-1, -2), valid.transpose(-1, -2), w.transpose(-1, -2), -2
         if dd.shape[-1] < 8:
             continue  # fewer than 8 samples per line: no line test possible
-        p, noise = _profile(dd, vv, ww, smooth)
+        half = min(smooth, max(1, dd.shape[-1] // 4))  # short lines: a shorter box
+        p, has, noise = _profile(dd, vv, ww, half)
+        if int(has.sum()) < 8:
+            continue  # fewer than 8 usable samples per line: no line test possible
         found, spec = _analyse(
-            p, noise, o, dim, min_frequency, false_alarm, min_stripe, max_components
+            p,
+            has,
+            noise,
+            2 * half + 1,
+            o,
+            dim,
+            min_frequency,
+            false_alarm,
+            min_stripe,
+            max_components,
         )
         components.extend(found)
         spectra[o] = spec

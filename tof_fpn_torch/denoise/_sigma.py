@@ -108,6 +108,8 @@ def _estimate_sigma(
 ) -> torch.Tensor:
     """:func:`estimate_sigma` without argument checks; ``x`` float32/64, ``kernel`` from
     :func:`hh_kernel` in the dtype of ``x``, ``valid`` (B, C, H, W) bool or None."""
+    if x.shape[-2] < 4 or x.shape[-1] < 4:  # no 4 x 4 block: nothing to estimate from
+        return torch.zeros(x.shape[0], x.shape[1], dtype=x.dtype, device=x.device)
     d = _detail(x, kernel)
     keep = _valid_coefficients(x, valid, kernel) & (d != 0)
     return _median_abs(d, keep) * K.MAD_TO_SIGMA
@@ -118,6 +120,8 @@ def _estimate_noise_k(
 ) -> torch.Tensor:
     """:func:`estimate_noise_k` without argument checks (same conventions as above)."""
     B, C, H, W = x.shape
+    if H < 4 or W < 4:  # no 4 x 4 block: nothing to estimate from
+        return torch.zeros(B, C, dtype=x.dtype, device=x.device)
     amp_ok = torch.isfinite(amplitude) & (amplitude > 0)
     ok = amp_ok.expand(B, C, H, W)
     if valid is not None:

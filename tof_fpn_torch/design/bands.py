@@ -78,7 +78,8 @@ def fpn_bands(rho: float, notches: Sequence[float] = DEFAULT_NOTCHES) -> np.ndar
     w = check_notches(notches)
     limit = max_rho(w)
     if rho > limit * (1 + 1e-12):
-        where = "the default notches (2pi/3, pi)" if np.allclose(w, DEFAULT_NOTCHES) else "notches"
+        default = w.size == len(DEFAULT_NOTCHES) and np.allclose(w, DEFAULT_NOTCHES)
+        where = "the default notches (2pi/3, pi)" if default else "notches"
         raise ValueError(
             f"rho={rho!r} makes the passbands empty or overlap; rho must lie in "
             f"(0, {limit:.6g}] for {where} {w.tolist()}"

@@ -132,12 +132,13 @@ def _fpn_filter(
         y = _fill_dense(work, valid, window, dims[-1], window_ops, fast)
         for d in dims:
             y = _along(y, taps, d, border, taps_ops, fast)
-        return torch.where(valid, y, work).to(out_dtype)
+        keep = valid & valid_mask(y)  # ringing past 0 next to a spike: keep the input there
+        return torch.where(keep, y, work).to(out_dtype)
     if mask is None and all_valid(work):  # one integer min/max: the usual clean frame
         y = work
         for d in dims:
             y = _along(y, taps, d, border, taps_ops, fast)
-        return y.to(out_dtype)
+        return _keep_valid(y, work, None).to(out_dtype)
     work = work.contiguous()
     valid = valid_mask(work, mask=mask)
     inv = torch.nonzero(~valid.reshape(-1)).squeeze(1)
@@ -155,7 +156,18 @@ def _fpn_filter(
             y.view(-1).index_copy_(0, inv, back)
         else:
             y = y.contiguous().reshape(-1).index_copy(0, inv, back).view(work.shape)
-    return y.to(out_dtype)
+    return _keep_valid(y, work, valid).to(out_dtype)
+
+
+def _keep_valid(y: torch.Tensor, x: torch.Tensor, valid: torch.Tensor | None) -> torch.Tensor:
+    """A valid input pixel never comes out invalid: where the filter rang to <= 0 (next to a
+    depth spike: a 3.6 m outlier among 0.35 m), the input value is kept (one min / max check)."""
+    if valid is None and all_valid(y):
+        return y
+    bad = ~valid_mask(y)
+    if valid is not None:
+        bad = bad & valid
+    return torch.where(bad, x, y)
 
 
 def fpn_filter(
@@ -254,7 +266,8 @@ class FPNFilter(nn.Module):
         compensated: bool = False,
     ) -> None:
         super().__init__()
-        t = torch.as_tensor(taps, dtype=torch.float64).detach().clone()
+        with torch.inference_mode(False):  # the module's own tensors, even if built in one
+            t = torch.as_tensor(taps, dtype=torch.float64).detach().clone()
         check_taps(t)
         if border not in BORDER_MODES:
             raise ValueError(f"border must be one of {BORDER_MODES}, got {border!r}")
@@ -271,20 +284,22 @@ class FPNFilter(nn.Module):
         self.notches = [float(w) for w in notches]
         self.compensated = bool(compensated)
         self.design = None  # the offline design object, when a builder made this module
-        if trainable:
-            self.taps = nn.Parameter(t)
-        else:
-            self.register_buffer("taps", t)
-        self.register_buffer("window", fill_window(t.numel()))
-        for i, op in enumerate(fir_operators(self.window, "zeros")):
-            self.register_buffer(f"_window_op{i}", op, persistent=False)
-        self._ops_version = -1
-        self._build_operators()
+        with torch.inference_mode(False):
+            if trainable:
+                self.taps = nn.Parameter(t)
+            else:
+                self.register_buffer("taps", t)
+            self.register_buffer("window", fill_window(t.numel()))
+            for i, op in enumerate(fir_operators(self.window, "zeros")):
+                self.register_buffer(f"_window_op{i}", op, persistent=False)
+            self._ops_version = -1
+            self._build_operators()
 
     @torch.jit.unused
     def _build_operators(self) -> None:
-        for i, op in enumerate(fir_operators(self.taps, self.border)):
-            self.register_buffer(f"_taps_op{i}", op.to(self.taps.device), persistent=False)
+        with torch.inference_mode(False):
+            for i, op in enumerate(fir_operators(self.taps, self.border)):
+                self.register_buffer(f"_taps_op{i}", op.to(self.taps.device), persistent=False)
         self._ops_version = self.taps._version
 
     @torch.jit.unused

@@ -119,6 +119,8 @@ def stripe_gate(
         >>> float(stripe_gate(striped, flat, None, [-1], [math.pi], 1.0))
         1.0
     """
+    if x.dtype == torch.float16 or x.dtype == torch.bfloat16:  # power sums overflow in 16 bits
+        x, filtered = x.float(), filtered.float()
     e = x - filtered
     keep = torch.isfinite(e) if valid is None else valid & torch.isfinite(e)
     e = torch.where(keep, e, torch.zeros_like(e))
