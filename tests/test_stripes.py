@@ -33,9 +33,9 @@ def test_finds_paper_frequencies_columns():
     assert all(c.dim == -1 for c in cols)
     for c in cols:  # a false-alarm probability: F(2, 2R) tail x the frequencies searched
         assert c.confidence == pytest.approx(1 - c.false_alarm, abs=1e-12)
-        assert 0 < c.false_alarm <= 0.01
+        assert 0 < c.false_alarm <= 0.01 / 2  # the budget, split over two orientations
         t, r = 10 ** (c.snr_db / 10), 8  # 8 references at 144 columns
-        searched = 144 * (math.pi - 0.15 * math.pi) / (2 * math.pi)
+        searched = 2 * 144 * (math.pi - 0.15 * math.pi) / (2 * math.pi)
         assert c.false_alarm == pytest.approx(min(1.0, searched * (1 + t / r) ** (-r)), rel=1e-9)
     assert est.notches() == tuple(freqs) and est.dims == (-1,)
 
@@ -86,10 +86,13 @@ def test_clean_scene_has_no_stripes(h, w, with_amplitude):
     d[0, 0, h // 3 : h // 3 + 3, w // 4 : w // 4 + 3] = float("nan")
     d[1, 0, h // 2, :] = 0.0
     assert estimate_stripes(d, _amplitude(d, 7) if with_amplitude else None).components == ()
-    if min(h, w) >= 33:  # positive control: a 5 cm row stripe at 0.55 pi is found
+    if min(h, w) >= 33:  # positive control: a row stripe at 0.55 pi is found
         d = _scene(3, h, w, 0)
         n = torch.arange(h, dtype=torch.float64).unsqueeze(-1)
-        striped = d + 0.05 * torch.cos(0.55 * math.pi * n)
+        # 5 cm; 10 cm on the 33-40 px frames, whose disc and curvature fill the 33-sample
+        # spectrum (the calibrated test needs T ~ 16 there against 28 searched frequencies)
+        size = 0.05 if min(h, w) >= 64 else 0.1
+        striped = d + size * torch.cos(0.55 * math.pi * n)
         comps = estimate_stripes(striped, _amplitude(d, 0) if with_amplitude else None).components
         assert comps and all(c.orientation == "rows" for c in comps), comps
         assert abs(comps[0].frequency - 0.55 * math.pi) < 2 * math.pi / h

@@ -25,9 +25,12 @@ Method, per orientation (columns: profiles along the width; rows: along the heig
 5. **Line test**: ``T = P(f) / mean P(references)`` with ``R`` (up to 8) reference frequencies 3 to 12
    bins away, inside ``(0, pi)``, away from lines already found. For a smooth local spectrum (noise,
    edges, broadband column offsets) ``T ~ F(2, 2R)``, ``P(T > t) = (1 + t / R)^-R``; with ``M``
-   independent frequencies searched the **false-alarm probability** of the component is
+   frequencies searched (twice the DFT bins in the band: the maximum over a continuous frequency
+   beats the bins') the **false-alarm probability** of the component is
    ``min(1, M (1 + T / R)^-R)`` (Bonferroni), reported as ``false_alarm``; ``confidence`` is
-   ``1 - false_alarm``. A component is reported when ``false_alarm <= false_alarm_max`` (1 %).
+   ``1 - false_alarm``. A component is reported when ``false_alarm`` is within the budget
+   (:data:`~tof_fpn_torch.constants.DETECTION_FALSE_ALARM`, 1 % for the whole estimate, split
+   over the orientations).
 6. **Floor in depth units**: its amplitude ``a`` (from ``P(f) - mean P(references)``) must be at
    least ``min_stripe`` (:data:`~tof_fpn_torch.constants.GATE_MIN_STRIPE`, the run-time gate's
    rule) times the data's own per-pixel noise ``sigma`` (the robust sigma of ``r``, corrected for
@@ -173,7 +176,9 @@ def _analyse(
     pw = power.tolist()
     last = len(pw) - 1
     df = 2 * math.pi / pad  # grid step
-    searched = max(1.0, n * (math.pi - min_frequency) / (2 * math.pi))  # independent frequencies
+    # frequencies searched: the DFT bins in the band, twice (the maximum over a continuous
+    # frequency, found on the 8x finer grid, beats the bins' maximum)
+    searched = max(1.0, 2.0 * n * (math.pi - min_frequency) / (2 * math.pi))
     cands = [
         j
         for j in range(1, last + 1)
@@ -259,7 +264,8 @@ def estimate_stripes(
         smooth: half-width of the per-line box filter removed before averaging (>= 1).
         min_frequency: lowest frequency searched, radians/sample in ``(0, pi)``; lower ones are
             scene structure, and a notch there would remove scene content.
-        false_alarm: largest false-alarm probability of a reported component, in ``(0, 1)``.
+        false_alarm: false-alarm budget of the whole estimate, in ``(0, 1)``: each orientation
+            reports components whose false-alarm probability is within its share.
         min_stripe: smallest reported amplitude in units of the per-pixel noise (>= 0).
         max_components: most components per orientation.
 
@@ -328,7 +334,7 @@ def estimate_stripes(
             o,
             dim,
             min_frequency,
-            false_alarm,
+            false_alarm / len(orientations),  # the budget is for the whole estimate
             min_stripe,
             max_components,
         )
