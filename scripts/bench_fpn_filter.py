@@ -73,7 +73,15 @@ def main() -> None:
     cv2.setNumThreads(args.threads)
     gen = torch.Generator().manual_seed(0)
     shape = (args.batch, 1, args.height, args.width)
-    x = 0.5 + 4.0 * torch.rand(shape, generator=gen)  # valid depth in metres (no NaN/0)
+    # depth-like frames in metres (no NaN/0): a slanted, curved surface, 1 cm noise, 5 mm stripes.
+    # (Uniform random values would not be depth: their filtered output rings below 0, which the
+    # module treats as invalid and answers with the input.)
+    yy = torch.linspace(0.0, 1.0, args.height).view(1, 1, -1, 1)
+    xx = torch.linspace(0.0, 1.0, args.width).view(1, 1, 1, -1)
+    phase = 6.0 * torch.rand(args.batch, 1, 1, 1, generator=gen)
+    cols = torch.arange(args.width).view(1, 1, 1, -1)
+    x = 2.0 + 0.8 * yy + 0.3 * torch.sin(5.0 * xx + phase) + 0.005 * torch.cos(torch.pi * cols)
+    x = (x + 0.01 * torch.randn(shape, generator=gen)).contiguous()
     xn = x.numpy()
     nbytes = x.numel() * x.element_size()
 
