@@ -365,3 +365,15 @@ def test_bad_inputs():
         NonLocalMeans(patch_size=5.0)
     with pytest.raises(ValueError, match="valid must"):
         estimate_sigma(x, valid=torch.ones(1, 1, 8, 8))
+
+
+def test_sigma_as_int_or_numpy_scalar_is_a_number():
+    """Rough edge: ``sigma=1`` (an int) or a NumPy scalar used to raise AttributeError."""
+    g = torch.Generator().manual_seed(3)
+    x = 2.0 + 0.1 * torch.randn(1, 1, 24, 24, generator=g)
+    ref = non_local_means(x, sigma=1.0, patch_size=3, patch_distance=2)
+    torch.testing.assert_close(non_local_means(x, sigma=1, patch_size=3, patch_distance=2), ref)
+    out = non_local_means(x, sigma=np.float32(1.0), patch_size=3, patch_distance=2)
+    torch.testing.assert_close(out, ref)
+    with pytest.raises(ValueError, match="sigma must be a number, a tensor or None, got str"):
+        non_local_means(x, sigma="0.1")
