@@ -72,8 +72,8 @@ def _as_sigma(sigma):
     """Python numbers (int, NumPy scalars) as float; tensors and None as they are."""
     if sigma is None or isinstance(sigma, (torch.Tensor, float)):
         return sigma
-    if isinstance(sigma, bool):
-        raise ValueError(f"sigma must be a number, a tensor or None, got {sigma!r}")
+    if isinstance(sigma, (bool, str, bytes)):
+        raise ValueError(f"sigma must be a number, a tensor or None, got {type(sigma).__name__}")
     try:
         return float(sigma)
     except (TypeError, ValueError):
