@@ -41,6 +41,9 @@ ALLOWED: dict[str, set[str]] = {
         "cameras",
     },
     "export": {"runtime"},
+    # the file layer: beside the simulator (never imports it), reads the validity rule and the
+    # camera profile names
+    "io": {"runtime", "cameras"},
     "cli": {
         "runtime",
         "design",
@@ -63,6 +66,7 @@ THIRD_PARTY: dict[str, set[str]] = {
     "sim": {"torch"},
     "plotting": {"matplotlib"},
     "cameras": set(),
+    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av"},
 }
 
 

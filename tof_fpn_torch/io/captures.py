@@ -1,0 +1,139 @@
+"""Camera-specific raw files: Analog Devices ADTF3175 frames and Kinect v2 P0 tables.
+
+* ADTF3175 depth + IR: two raw uint16 LE files of 512 x 512 (depth in mm, 0 invalid; IR / active
+  brightness in 12-bit counts) -- :func:`read_adi_depth_ir` (see :mod:`.raw`).
+* ADTF3175 interleaved frame: 5 bytes per pixel, row-major: depth uint16 LE (mm, 0 invalid),
+  confidence uint8, active brightness (AB) uint16 LE -- :func:`read_adi_interleaved` /
+  :func:`write_adi_interleaved` (a read-then-write round trip is byte-exact).
+* Kinect v2 P0 tables: 3 planes of 424 x 512 uint16 LE, no header; a plane per modulation frequency
+  (80, 16, 120 MHz, libfreenect2's order); ``65536`` units are one turn (2 pi rad) --
+  :func:`read_kinect_v2_p0` returns radians in [0, 2 pi) / :func:`write_kinect_v2_p0`.
+
+All readers return float32 (B, C, H, W) CPU tensors with the units stated on each.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ._common import (
+    amplitude_from_stored,
+    amplitude_to_stored,
+    as_frames,
+    check_not_empty,
+    check_same_shape,
+    depth_from_stored,
+    depth_to_stored,
+    output_path,
+)
+from .raw import RAW_DTYPE, read_raw, read_raw_array
+
+__all__ = [
+    "ADI_SHAPE",
+    "KINECT_V2_P0_SHAPE",
+    "P0_UNITS_PER_TURN",
+    "read_adi_depth_ir",
+    "read_adi_interleaved",
+    "read_kinect_v2_p0",
+    "write_adi_interleaved",
+    "write_kinect_v2_p0",
+]
+
+#: (height, width) of the ADTF3175 frames (megapixel mode binned / QMP)
+ADI_SHAPE: tuple[int, int] = (512, 512)
+#: (planes, height, width) of the Kinect v2 P0 tables
+KINECT_V2_P0_SHAPE: tuple[int, int, int] = (3, 424, 512)
+#: stored units per turn of phase in the P0 tables (65536 = 2 pi rad)
+P0_UNITS_PER_TURN: int = 1 << 16
+#: the interleaved pixel: depth uint16 LE (mm), confidence uint8, active brightness uint16 LE
+_INTERLEAVED = np.dtype([("depth", "<u2"), ("confidence", "u1"), ("ab", "<u2")])
+
+
+def read_adi_depth_ir(
+    depth_path,
+    ir_path,
+    height: int = ADI_SHAPE[0],
+    width: int = ADI_SHAPE[1],
+    *,
+    allow_empty: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """ADTF3175 depth and IR raw frames (uint16 LE each, ``height x width``).
+
+    Returns:
+        ``(depth, ir)``, float32 (T, 1, H, W): depth in metres (stored mm; 0 -> NaN), IR in
+        counts (12-bit active brightness).
+    """
+    depth = read_raw(depth_path, height, width, "depth", allow_empty=True)
+    ir = read_raw(ir_path, height, width, "amplitude")
+    check_same_shape(depth, ir, f"{depth_path} / {ir_path}")
+    check_not_empty(depth, ir, str(depth_path), allow_empty)
+    return depth, ir
+
+
+def read_adi_interleaved(
+    path, height: int = ADI_SHAPE[0], width: int = ADI_SHAPE[1], *, allow_empty: bool = False
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """ADTF3175 interleaved frame: 5 bytes per pixel (depth u16 LE mm, confidence u8, AB u16 LE).
+
+    Returns:
+        ``(depth, confidence, ab)``, float32 (T, 1, H, W): depth in metres (0 mm -> NaN), the
+        camera's confidence code (0 .. 255, unscaled) and active brightness in counts.
+    """
+    arr = read_raw_array(path, height, width, dtype=_INTERLEAVED, what="ADTF3175 interleaved")
+    depth = depth_from_stored(arr["depth"])
+    ab = amplitude_from_stored(arr["ab"])
+    check_not_empty(depth, ab, str(path), allow_empty)
+    return depth, amplitude_from_stored(arr["confidence"]), ab
+
+
+def write_adi_interleaved(path, depth, confidence, ab) -> Path:
+    """Write an ADTF3175 interleaved file from depth (metres, NaN invalid -> 0 mm), confidence
+    (integer codes 0 .. 255) and active brightness (counts); each (H, W), (T, H, W) or
+    (T, 1, H, W) floating."""
+    d = as_frames(depth, "depth")
+    c = as_frames(confidence, "confidence")
+    a = as_frames(ab, "ab")
+    check_same_shape(d, c, "write_adi_interleaved (depth / confidence)")
+    check_same_shape(d, a, "write_adi_interleaved (depth / ab)")
+    cc = np.asarray(c, dtype=np.float64)
+    if not np.isfinite(cc).all() or cc.min() < 0 or cc.max() > 255 or (cc != np.rint(cc)).any():
+        raise ValueError("confidence must hold integer codes in [0, 255] (stored as uint8)")
+    out = np.empty(d.shape, dtype=_INTERLEAVED)
+    out["depth"] = depth_to_stored(d, "uint16")
+    out["confidence"] = cc.astype(np.uint8)
+    out["ab"] = amplitude_to_stored(a, "uint16")
+    p = output_path(path)
+    out.tofile(p)
+    return p
+
+
+def read_kinect_v2_p0(path) -> torch.Tensor:
+    """Kinect v2 P0 tables (3 x 424 x 512 uint16 LE, no header) as phase offsets.
+
+    Returns:
+        float32 (3, 1, 424, 512) in radians, [0, 2 pi): one table per modulation frequency
+        (80, 16, 120 MHz), stored ``u`` -> ``2 pi u / 65536``.
+    """
+    n, h, w = KINECT_V2_P0_SHAPE
+    arr = read_raw_array(path, h, w, frames=n, what="Kinect v2 P0 table")
+    rad = arr.astype(np.float64) * (2.0 * math.pi / P0_UNITS_PER_TURN)
+    return torch.from_numpy(rad.astype(np.float32)).unsqueeze(1)
+
+
+def write_kinect_v2_p0(path, p0) -> Path:
+    """Write P0 tables from phase offsets in radians ((3, 1, 424, 512) or (3, 424, 512)
+    floating; any finite value, wrapped to one turn), as 3 x 424 x 512 uint16 LE."""
+    x = as_frames(p0, "p0")
+    if x.shape != KINECT_V2_P0_SHAPE:
+        raise ValueError(f"p0 must have shape {list(KINECT_V2_P0_SHAPE)}, got {list(x.shape)}")
+    x = x.astype(np.float64)
+    if not np.isfinite(x).all():
+        raise ValueError("p0 must be finite (radians)")
+    units = np.rint(x * (P0_UNITS_PER_TURN / (2.0 * math.pi))) % P0_UNITS_PER_TURN
+    p = output_path(path)
+    units.astype(RAW_DTYPE).tofile(p)
+    return p
