@@ -10,6 +10,7 @@ Layers (docs/architecture.md), each a subpackage that may import only the ones b
 - :mod:`.analysis` -- metrics (:func:`psnr`) and stripe estimation (:func:`estimate_stripes`);
 - :mod:`.sim` -- the raw-level simulator;
 - :mod:`.build` -- run-time modules from a design or from data (:func:`suppression_from_design`);
+- :mod:`.io` -- the file layer: camera files, the recording / scene formats, :class:`FrameDataset`;
 - :mod:`.experiments`, :mod:`.export`, :mod:`.cli` -- the paper's experiments, export, ``tof-fpn``.
 
 The names below are loaded on first use, so ``import tof_fpn_torch.runtime`` loads torch only.
@@ -47,6 +48,15 @@ _EXPORTS: dict[str, str] = {
     "Simulation": "sim",
     "planar_scene": "sim",
     "synthetic_scene": "sim",
+    "FrameDataset": "io",
+    "Recording": "io",
+    "SceneData": "io",
+    "read_pair": "io",
+    "read_recording": "io",
+    "read_scene": "io",
+    "write_pair": "io",
+    "write_recording": "io",
+    "write_scene": "io",
 }
 _MODULES: dict[str, str] = {"metrics": "analysis.metrics"}
 _SUBPACKAGES = (
@@ -59,6 +69,7 @@ _SUBPACKAGES = (
     "design",
     "experiments",
     "export",
+    "io",
     "runtime",
     "sim",
 )

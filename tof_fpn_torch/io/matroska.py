@@ -38,7 +38,7 @@ _PIXEL_FORMATS = ("gray16be", "gray16le")
 def _import_av():
     try:
         import av
-    except ImportError as exc:  # pragma: no cover - the test extra installs PyAV
+    except ImportError as exc:
         raise ImportError(
             "reading Azure Kinect .mkv recordings needs PyAV (FFmpeg bindings): "
             "pip install av   (or: pip install 'tof_fpn_torch[mkv]')"
@@ -64,10 +64,13 @@ def _track(container, title: str, path):
 
 
 def _calibration(container) -> object:
+    """The SDK's calibration JSON (an attachment), or None where it is absent or unreadable
+    (PyAV exposes attachment bytes as ``AttachmentStream.data`` in recent versions only)."""
     for s in container.streams:
         if s.type == "attachment" and s.metadata.get("filename") == "calibration.json":
+            data = getattr(s, "data", None)
             try:
-                return json.loads(bytes(s.data))
+                return None if data is None else json.loads(bytes(data))
             except (json.JSONDecodeError, UnicodeDecodeError):
                 return None
     return None

@@ -64,10 +64,12 @@ def save_npz(path, arrays: dict[str, np.ndarray], compress: bool = False) -> Pat
 def load_npz(path, what: str = "an .npz archive") -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` archive (no pickles); :class:`FormatError` if it is corrupt."""
     p = existing_file(path, what)
-    with decoding(p, what), np.load(p, allow_pickle=False) as f:
+    with decoding(p, what):
+        f = np.load(p, allow_pickle=False)
         if not isinstance(f, np.lib.npyio.NpzFile):
             raise TypeError("an .npy file, not an .npz archive")
-        return {k: f[k] for k in f.files}
+        with f:
+            return {k: f[k] for k in f.files}
 
 
 def read_npy(
