@@ -341,6 +341,13 @@ def test_hdf5_layout_errors(tmp_path):
         tio.read_hdf5(tmp_path / "l.h5")
     with pytest.raises(FormatError, match=r"no dataset 'range'; the file holds \['amplitude'"):
         tio.read_hdf5(tmp_path / "l.h5", depth_key="range")
+    with h5py.File(tmp_path / "s.h5", "w") as f:
+        f["depth"], f["amplitude"] = np.ones((2, 3), np.uint16), np.ones((2, 3))
+        f["depth"].attrs["scale_m"] = -1.0
+    with pytest.raises(FormatError, match=r"\[depth\].attrs\['scale_m'\]: not a scale"):
+        tio.read_hdf5(tmp_path / "s.h5")
+    d, _ = tio.read_hdf5(tmp_path / "s.h5", depth_scale=0.5)  # the argument wins
+    assert bool((d == 0.5).all())
 
 
 def test_npz_layout_errors(tmp_path):

@@ -109,6 +109,8 @@ def test_azure_kinect_mkv_depth_and_ir():
     assert 0.5 < med < 3.0  # a mug on a desk, metres (mm would be ~1000)
     assert float(rec.depth[valid].min()) > 0.1 and float(rec.depth[valid].max()) < 10
     assert rec.timestamps_s.shape == (1,) and 0 <= float(rec.timestamps_s[0]) < 10
+    saturated = rec.amplitude == 65535  # IR's top code: only where depth is invalid
+    assert int(saturated.sum()) > 1000 and not bool((saturated & valid).any())
     # independent of PyAV's decoding: the big-endian images are stored verbatim in the file
     data = _real(MKV).read_bytes()
     mm = torch.where(valid, rec.depth * 1000, torch.zeros_like(rec.depth)).round()

@@ -37,6 +37,7 @@ __all__ = [
     "check_kind",
     "check_not_empty",
     "check_same_shape",
+    "check_scale",
     "decoding",
     "depth_from_stored",
     "depth_to_stored",
@@ -106,7 +107,7 @@ def _check_dtype_name(dtype: str) -> str:
     return dtype
 
 
-def _check_scale(depth_scale, name: str = "depth_scale") -> float:
+def check_scale(depth_scale, name: str = "depth_scale") -> float:
     if isinstance(depth_scale, bool) or not isinstance(depth_scale, (int, float, np.floating)):
         raise ValueError(
             f"{name} must be a real number (metres per stored unit), got {depth_scale!r}"
@@ -166,7 +167,7 @@ def depth_from_stored(arr: np.ndarray, depth_scale: float | None = None) -> torc
     mm value ``v`` comes back from :func:`depth_to_stored` as ``v`` exactly."""
     if depth_scale is None:
         depth_scale = METRES_PER_MM if arr.dtype.kind in "ui" else 1.0
-    scale = _check_scale(depth_scale)
+    scale = check_scale(depth_scale)
     metres = arr.astype(np.float64) * scale if scale != 1.0 else arr.astype(np.float64)
     t = torch.from_numpy(metres.astype(np.float32)).unsqueeze(1)
     return torch.where(valid_mask(t), t, torch.full_like(t, float("nan")))
@@ -189,7 +190,7 @@ def depth_to_stored(
     _check_dtype_name(dtype)
     if depth_scale is None:
         depth_scale = METRES_PER_MM if dtype == "uint16" else 1.0
-    scale = _check_scale(depth_scale)
+    scale = check_scale(depth_scale)
     d = depth.astype(np.float64)
     valid = valid_mask(torch.from_numpy(d)).numpy()
     units = np.where(valid, d, 0.0) / scale

@@ -132,7 +132,7 @@ class FrameDataset(Dataset):
     def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor, dict]:
         if not -len(self) <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} frames")
-        index %= len(self)
+        index = int(index) % len(self)
         name, depth_path, amplitude_path = self.frames[index]
         depth, amplitude = read_pair(
             depth_path,

@@ -31,6 +31,7 @@ from ._common import (
     as_frames,
     check_not_empty,
     check_same_shape,
+    check_scale,
     decoding,
     depth_from_stored,
     depth_to_stored,
@@ -80,7 +81,11 @@ def read_hdf5(
     with decoding(p, "an HDF5 file"), h5py.File(p, "r") as f:
         dset, aset = _dataset(f, depth_key, p), _dataset(f, amplitude_key, p)
         if depth_scale is None and "scale_m" in dset.attrs:
-            depth_scale = float(np.asarray(dset.attrs["scale_m"]))
+            where = f"{p} [{depth_key}].attrs['scale_m']"
+            try:
+                depth_scale = check_scale(float(np.asarray(dset.attrs["scale_m"])), where)
+            except (TypeError, ValueError) as exc:
+                raise FormatError(f"{where}: not a scale in metres per unit: {exc}") from exc
         d, a = dset[()], aset[()]
     d = stored_frames(d, f"{p} [{depth_key}]")
     a = stored_frames(a, f"{p} [{amplitude_key}]")

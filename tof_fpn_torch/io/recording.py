@@ -149,7 +149,10 @@ class Recording:
                     f"raw has {self.raw.shape[1]} samples per frame, meta n_phases {n}"
                 )
         if self.timestamps_s is not None:
-            ts = torch.as_tensor(np.asarray(self.timestamps_s, dtype=np.float64))
+            ts = self.timestamps_s
+            if isinstance(ts, torch.Tensor):
+                ts = ts.detach().cpu().numpy()
+            ts = torch.from_numpy(np.array(ts, dtype=np.float64))
             if ts.shape != (t,) or not bool(torch.isfinite(ts).all()):
                 raise ValueError(f"timestamps_s must be {t} finite seconds, got {list(ts.shape)}")
             if t > 1 and not bool((ts[1:] > ts[:-1]).all()):
