@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from tof_fpn_torch import io as tio
 from tof_fpn_torch.build import fusion_from_data
 from tof_fpn_torch.denoise import estimate_noise_k
 from tof_fpn_torch.experiments.common import make_synthetic_data
@@ -59,6 +60,11 @@ def main() -> None:
         torch.from_numpy(ab.astype(np.float64))[None, None],
         "mm",
     )
+
+    rec = tio.read_azure_kinect_mkv(REAL / "azure_kinect" / "desk_recording.mkv")
+    depth, ir = rec.depth.double(), rec.amplitude.double()
+    depth = torch.where(ir < 65535, depth, torch.nan)  # saturated IR: no measurement
+    _report("Azure Kinect desk (depth, IR)", depth, ir, "m")
 
 
 if __name__ == "__main__":
