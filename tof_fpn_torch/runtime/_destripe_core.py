@@ -1,0 +1,309 @@
+r"""Kernels of :func:`~tof_fpn_torch.runtime.destripe` (torch only, TorchScript-clean).
+
+Everything here works on ``x`` of shape (N, K, H, W): N images, K = 1 (depth) or 2 (the real and
+imaginary parts of ``z = A e^{j phi}``) channels that share one robust inlier test, offsets varying
+along W (one per column) and constant along H. The public module turns rows into columns by a
+transpose and depth into ``z`` and back. Steps (``tests/test_destripe.py`` checks them against an
+independent NumPy / SciPy implementation):
+
+1. The rows are split into a top and a bottom half; each half is estimated on its own.
+2. Pilot (per half, on a strided subsample of at most ``pilot_rows / 2`` rows): the per-pair
+   median of the horizontal differences ``g = x[..., 1:] - x[..., :-1]``; the robust scale
+   ``sigma`` of ``|g - pilot|`` (MAD start, then clipped-RMS iterations de-biased for the clipping,
+   so depth quantised to whole millimetres, where the MAD can be 0, is measured right); the pilot
+   is then the trimmed mean (``|g - pilot| <= clip sigma``) of the subsample.
+3. Pair means over all rows of the half: a difference more than ``clip sigma`` from the pilot (an
+   edge, a bar, a curved object, an invalid pixel) is replaced by the pilot.
+4. Pair means more than ``DESTRIPE_STEP_CLIP`` robust sigmas from their median over the columns
+   are edges that most rows share (a wall-to-box edge, not one of a population of stripe steps):
+   replaced by the median.
+5. Profile: the pair means integrated along W (``cumsum``) and high-passed: minus their local
+   linear fit over ``width`` (at most W / 4) columns.
+6. Shrinkage: the profile of all rows ``p`` (row-weighted mean of the halves' profiles) is split
+   into octave bands (:func:`band_widths`); in each band, over all columns (``"global"``) or over
+   windows of ``local_width`` columns (``"local"``), it is scaled by
+   ``f = clamp((C - z sd0) / E, 0, 1)`` with ``C = <p_top, p_bottom>``, ``E = <p, p>`` and
+   ``sd0`` the standard deviation of ``C`` without stripes (from ``(p_top - p_bottom)^2``).
+   ``C / E`` is the positive-part James-Stein (Wiener) factor with the noise energy measured by
+   cross-validation: the halves share the stripes but not their noise, nor structure confined to
+   one half. Last, the offsets get zero mean over the valid pixels (the image mean never moves).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from .. import constants as K
+
+__all__ = ["column_offsets", "scale_moment"]
+
+
+def scale_moment(channels: int, clip: float) -> float:
+    """``E[|e|^2 | |e| <= clip sigma] / sigma^2`` for ``e`` with ``channels`` i.i.d. N(0, sigma^2)
+    components (1: truncated normal; 2: truncated Rayleigh), used to de-bias the clipped RMS."""
+    c = float(clip)
+    if channels == 1:
+        p = math.erf(c / math.sqrt(2.0))
+        dens = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
+        return 1.0 - 2.0 * c * dens / p
+    t = 0.5 * c * c
+    p = 1.0 - math.exp(-t)
+    return 2.0 * (1.0 - math.exp(-t) * (1.0 + t)) / p
+
+
+def _magnitude(e: torch.Tensor) -> torch.Tensor:
+    """``|e|`` over the channel dim 1 (kept), for K = 1 or 2."""
+    if e.shape[1] == 1:
+        return e.abs()
+    return torch.sqrt((e * e).sum(1, keepdim=True))
+
+
+def _robust_scale(
+    mag: torch.Tensor, ok: torch.Tensor | None, clip: float, moment: float, channels: int
+) -> torch.Tensor:
+    """Per-image scale (N,) of the per-channel noise from magnitudes ``mag`` (N, 1, R, C) at the
+    usable entries ``ok`` (None: all): a MAD-type start refined by clipped-RMS iterations."""
+    n = mag.shape[0]
+    flat = mag.reshape(n, -1)
+    sq = flat * flat
+    if ok is None:
+        okf = torch.ones_like(flat, dtype=torch.bool)
+        med = flat.median(dim=1).values
+    else:
+        okf = ok.reshape(n, -1)
+        sq = torch.where(okf, sq, 0.0)
+        med = torch.nanmedian(torch.where(okf, flat, math.nan), dim=1).values
+        med = torch.nan_to_num(med, nan=0.0)
+    count = okf.sum(1).to(mag.dtype)
+    # the median of |e| is sigma / MAD_TO_SIGMA for K = 1 and sqrt(2 ln 2) sigma for K = 2
+    start = med * K.MAD_TO_SIGMA if channels == 1 else med / math.sqrt(2.0 * math.log(2.0))
+    rms = torch.sqrt(sq.sum(1) / count.clamp_min(1.0) / channels)
+    sigma = torch.where(start > 0, start, rms)
+    for _ in range(4):
+        sel = okf & (flat <= clip * sigma[:, None])
+        m2 = torch.where(sel, sq, 0.0).sum(1) / sel.sum(1).clamp_min(1)
+        sigma = torch.sqrt(m2 / moment)
+    return sigma
+
+
+def _inliers(g: torch.Tensor, centre: torch.Tensor, limit: torch.Tensor) -> torch.Tensor:
+    """(N, 1, R, C) bool: ``|g - centre| <= limit`` over the K channels of (N, K, R, C) ``g``;
+    NaN never passes."""
+    if g.shape[1] == 1:
+        return (g >= centre - limit) & (g <= centre + limit)
+    e = g - centre
+    return (e * e).sum(1, keepdim=True) <= limit * limit
+
+
+def _trimmed_means(
+    g: torch.Tensor, ok: torch.Tensor | None, centre: torch.Tensor, limit: torch.Tensor
+) -> torch.Tensor:
+    """Means (N, K, 1, C) over the rows of the inliers of ``g`` (``centre`` where there is none)."""
+    inl = _inliers(g, centre, limit)
+    if ok is not None:
+        inl = inl & ok
+    s = torch.where(inl, g, 0.0).sum(2, keepdim=True)
+    n = inl.sum(2, keepdim=True).to(g.dtype)
+    return torch.where(n > 0, s / n.clamp_min(1.0), centre)
+
+
+def _pilot(
+    x: torch.Tensor, valid: torch.Tensor | None, clip: float, moment: float, rows: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(pilot pair means (N, K, 1, W - 1), sigma (N,))`` from a strided subsample of at most
+    ``rows`` rows of ``x`` (N, K, R, W): per-pair median, robust scale around it, trimmed mean."""
+    k, h = x.shape[1], x.shape[2]
+    step = max(1, (h + rows - 1) // rows)
+    xs = x[:, :, ::step].contiguous()
+    gs = xs[..., 1:] - xs[..., :-1]
+    oks: torch.Tensor | None = None
+    if valid is not None:
+        vs = valid[:, :, ::step]
+        oks = vs[..., 1:] & vs[..., :-1]
+        gt = torch.where(oks, gs, math.nan).transpose(2, 3).contiguous()
+        pilot = torch.nan_to_num(torch.nanmedian(gt, dim=3).values, nan=0.0)[:, :, None]
+    else:
+        pilot = gs.transpose(2, 3).contiguous().median(dim=3).values[:, :, None]
+    sigma = _robust_scale(_magnitude(gs - pilot), oks, clip, moment, k)
+    pilot = _trimmed_means(gs, oks, pilot, clip * sigma[:, None, None, None])
+    return pilot, sigma
+
+
+def _half_means(
+    x: torch.Tensor, valid: torch.Tensor | None, clip: float, moment: float, rows: int
+) -> torch.Tensor:
+    """Robust means (N, K, W - 1) of the pair differences over the rows of ``x`` (N, K, R, W).
+
+    A difference further than ``clip sigma`` from the pilot (:func:`_pilot` on ``rows`` rows), or
+    invalid, is replaced by the pilot and the mean is taken over all ``R`` rows: one select and one
+    sum, no counts (the fixed point of this imputation is the trimmed mean; one step from the pilot
+    differs from it by ``outlier share * (pilot - trimmed mean)``). These few passes are the cost."""
+    pilot, sigma = _pilot(x, valid, clip, moment, rows)
+    limit = clip * sigma[:, None, None, None].to(x.dtype)
+    if valid is None and x.shape[1] == 1:
+        # sum of where(|g - pilot| <= limit, g, pilot) = sum g - limit * sum hardshrink(t, 1) with
+        # t = (g - pilot) / limit, and sum g from the column sums of x: no masks, no counts
+        inv = 1.0 / limit.clamp_min(1e-30)
+        t = torch.addcmul(-pilot * inv, x[..., :-1], -inv)
+        t.addcmul_(x[..., 1:], inv)
+        cs = x.sum(2)
+        s = (cs[..., 1:] - cs[..., :-1]) - limit[:, :, 0] * F.hardshrink(t, 1.0).sum(2)
+        s = torch.where(limit[:, :, 0] > 0, s, pilot[:, :, 0] * x.shape[2])
+    else:
+        g = x[..., 1:] - x[..., :-1]
+        inl = _inliers(g, pilot, limit)
+        if valid is not None:
+            inl = inl & (valid[..., 1:] & valid[..., :-1])
+        s = torch.where(inl, g, pilot).sum(2)
+    return s.double() / max(1, x.shape[2])
+
+
+def _reject_steps(m: torch.Tensor, clip: float) -> torch.Tensor:
+    """Pair means (N, K, C) whose distance from their median over the columns exceeds ``clip``
+    robust sigmas of that distance are scene edges that most rows share (a stripe step is one of
+    a population of similar steps; a wall-to-box edge is not): they are replaced by the median."""
+    med = m.median(dim=-1, keepdim=True).values
+    mag = _magnitude(m - med)
+    typical = mag.median(dim=-1, keepdim=True).values
+    # the median of |e| is sigma / MAD_TO_SIGMA for K = 1 and sqrt(2 ln 2) sigma for K = 2
+    sigma = (
+        typical * K.MAD_TO_SIGMA if m.shape[1] == 1 else typical / math.sqrt(2.0 * math.log(2.0))
+    )
+    return torch.where(mag > clip * sigma, med, m)
+
+
+def _window_sums(p: torch.Tensor, width: int) -> list[torch.Tensor]:
+    """Window sums over ``[x - h, x + h]`` (clipped to the line) of ``1, j, j^2, p, j p`` along the
+    last dim of (N, K, W) float64 ``p`` (``h = width // 2``)."""
+    w = p.shape[-1]
+    h = width // 2
+    j = torch.arange(w, dtype=p.dtype, device=p.device)
+    hi = torch.clamp(torch.arange(w, device=p.device) + h + 1, max=w)
+    lo = torch.clamp(torch.arange(w, device=p.device) - h, min=0)
+    out: list[torch.Tensor] = []
+    for q in (torch.ones_like(j), j, j * j):
+        c = F.pad(q.cumsum(0), (1, 0))
+        out.append(c[hi] - c[lo])
+    for q in (p, p * j):
+        c = F.pad(q.cumsum(-1), (1, 0))
+        out.append(c.index_select(-1, hi) - c.index_select(-1, lo))
+    return out
+
+
+def highpass(p: torch.Tensor, width: int) -> torch.Tensor:
+    """``p`` minus its local linear least-squares fit over ``width`` samples (windows clipped at
+    the ends, so a linear trend is removed exactly everywhere), along the last dim, float64."""
+    s0, sj, sjj, sp, sjp = _window_sums(p, width)
+    mj = sj / s0
+    vjj = sjj / s0 - mj * mj
+    mp = sp / s0
+    cov = sjp / s0 - mj * mp
+    slope = torch.where(vjj > 1e-9, cov / vjj.clamp_min(1e-9), torch.zeros_like(cov))
+    j = torch.arange(p.shape[-1], dtype=p.dtype, device=p.device)
+    return p - (mp + slope * (j - mj))
+
+
+def _box_sum(p: torch.Tensor, width: int) -> torch.Tensor:
+    w = p.shape[-1]
+    h = width // 2
+    hi = torch.clamp(torch.arange(w, device=p.device) + h + 1, max=w)
+    lo = torch.clamp(torch.arange(w, device=p.device) - h, min=0)
+    c = F.pad(p.cumsum(-1), (1, 0))
+    return c.index_select(-1, hi) - c.index_select(-1, lo)
+
+
+def _profile(pair: torch.Tensor, width: int) -> torch.Tensor:
+    """Integrated, high-passed column profile (N, K, W) from pair means (N, K, W - 1)."""
+    return highpass(F.pad(pair.cumsum(-1), (1, 0)), width)
+
+
+def column_offsets(
+    x: torch.Tensor,
+    valid: torch.Tensor | None,
+    width: int,
+    clip: float,
+    shrink: str,
+    local_width: int,
+    pilot_rows: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Column offsets of (N, K, H, W) ``x`` (module docstring): ``(offsets (N, K, W), factor)``
+    with ``factor`` the shrinkage applied, (N, 1, 1) or (N, 1, W) for ``"local"``. ``valid`` is
+    (N, 1, H, W) bool or None (all valid); invalid entries of ``x`` are never read as data."""
+    k, h = x.shape[1], x.shape[2]
+    moment = scale_moment(k, clip)
+    half = h // 2
+    # each half has its own pilot: the halves must not share anything but the stripes (a shared
+    # pilot, imputed at both halves' outliers, made structured scenes look striped)
+    rows = max(1, pilot_rows // 2)
+    v_top = None if valid is None else valid[:, :, :half]
+    v_bot = None if valid is None else valid[:, :, half:]
+    m_top = _half_means(x[:, :, :half], v_top, clip, moment, rows)
+    m_bot = _half_means(x[:, :, half:], v_bot, clip, moment, rows)
+    m_top = _reject_steps(m_top, K.DESTRIPE_STEP_CLIP)
+    m_bot = _reject_steps(m_bot, K.DESTRIPE_STEP_CLIP)
+    # a smooth scene profile common to both halves passes the cross-validation: the high-pass
+    # must be short against the line, so at most a quarter of it
+    width = max(3, min(width, x.shape[-1] // 4))
+    p_top, p_bot = _profile(m_top, width), _profile(m_bot, width)
+    p_all = (half * p_top + (h - half) * p_bot) / h
+    count = torch.ones_like(p_all[:, :1]) if valid is None else valid.sum(2, dtype=torch.float64)
+    if shrink == "none":
+        return _zero_mean(p_all, count).to(x.dtype), torch.ones_like(p_all[:, :1, :1]).to(x.dtype)
+    local = shrink == "local"
+    out = torch.zeros_like(p_all)
+    factors: list[torch.Tensor] = []
+    bands = band_widths(width)
+    for i in range(len(bands) + 1):
+        a, b, c = _band(p_top, bands, i), _band(p_bot, bands, i), _band(p_all, bands, i)
+        f = _factor(a, b, c, local, local_width)
+        factors.append(f)
+        out = out + f * c
+    return _zero_mean(out, count).to(x.dtype), torch.stack(factors, 0).to(x.dtype)
+
+
+def band_widths(width: int) -> list[int]:
+    """High-pass widths splitting the profile into octave bands: ``width // 2``, ``width // 4``,
+    ... down to 5 columns (none below 5)."""
+    out: list[int] = []
+    w = width // 2
+    while w >= 5:
+        out.append(w)
+        w = w // 2
+    return out
+
+
+def _band(p: torch.Tensor, widths: list[int], i: int) -> torch.Tensor:
+    """Band ``i`` of ``p``: ``p - HP_{w_0}(p)`` (coarsest), ``HP_{w_{i-1}} - HP_{w_i}``, ...,
+    ``HP_{w_last}(p)`` (finest); the bands sum to ``p``."""
+    hi = p if i == 0 else highpass(p, widths[i - 1])
+    lo = highpass(p, widths[i]) if i < len(widths) else torch.zeros_like(p)
+    return hi - lo
+
+
+def _factor(
+    top: torch.Tensor, bot: torch.Tensor, full: torch.Tensor, local: bool, window: int
+) -> torch.Tensor:
+    """Cross-validated positive-part factor ``clamp((C - z sd0(C)) / E, 0, 1)`` with ``C`` the
+    cross energy of the two halves, ``E`` the energy of ``full`` and ``sd0(C)`` the standard
+    deviation of ``C`` without stripes, estimated from the halves' difference: per column the noise
+    variance of each half is about ``(top - bottom)^2 / 2``."""
+    cross = (top * bot).sum(1, keepdim=True)
+    energy = (full * full).sum(1, keepdim=True)
+    # without stripes var(top * bottom) = v_t v_b, and E[(d^2 / 2)^2] = 3 v^2 for Gaussian d
+    d2 = ((top - bot) * (top - bot)).sum(1, keepdim=True) * 0.5
+    null = d2 * d2 * (1.0 / 3.0)
+    if local:
+        cross, energy, null = (_box_sum(t, window) for t in (cross, energy, null))
+    else:
+        cross, energy, null = (t.sum(-1, keepdim=True) for t in (cross, energy, null))
+    signal = cross - K.DESTRIPE_NULL_Z * torch.sqrt(null)
+    return torch.where(energy > 0, signal / energy.clamp_min(1e-300), 0.0).clamp(0.0, 1.0)
+
+
+def _zero_mean(p: torch.Tensor, count: torch.Tensor) -> torch.Tensor:
+    """``p`` minus its mean weighted by the valid pixels per column ``count`` (N, 1, W): the image
+    mean does not move."""
+    return p - (p * count).sum(-1, keepdim=True) / count.sum(-1, keepdim=True).clamp_min(1.0)
