@@ -124,3 +124,7 @@ DESTRIPE_NULL_Z: float = 2.5
 DESTRIPE_PILOT_ROWS: int = 32
 #: Window (columns) of ``shrink="local"``: the cross-validated factor is computed per window.
 DESTRIPE_LOCAL_WIDTH: int = 128
+#: :func:`~tof_fpn_torch.analysis.calibrate_fixed_pattern` calibrates per-pixel offsets (flat
+#: field) only from at least this many frames per group: a pixel's standard error is then at most
+#: a third of one frame's noise.
+CALIBRATION_MIN_PIXEL_FRAMES: int = 9

@@ -11,9 +11,11 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.fusion`: :func:`amplitude_fusion`, :class:`AmplitudeFusion` (eq. 11).
 - :mod:`.suppression`: :class:`FPNSuppression` (filter + fusion).
 - :mod:`.destripe`: :func:`destripe`, :class:`Destripe` (broadband column / row offsets, one frame).
+- :mod:`.fixed_pattern`: :class:`FixedPatternCorrection` (a calibrated fixed pattern, as buffers).
 """
 
 from .destripe import Destripe, destripe
+from .fixed_pattern import FixedPatternCorrection
 from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
 from .suppression import FPNSuppression
@@ -24,6 +26,7 @@ __all__ = [
     "Destripe",
     "FPNFilter",
     "FPNSuppression",
+    "FixedPatternCorrection",
     "all_valid",
     "amplitude_fusion",
     "amplitude_weight",
