@@ -36,19 +36,18 @@ def robust_scale(mags: np.ndarray, k: int, clip: float) -> float:
     start = med * MAD_TO_SIGMA if k == 1 else med / math.sqrt(2 * math.log(2))
     sigma = start if start > 0 else math.sqrt(np.mean(mags**2) / k) if mags.size else 0.0
     m = moment(k, clip)
-    for _ in range(4):
+    for _ in range(2):
         sel = mags[mags <= clip * sigma]
         sigma = math.sqrt((np.mean(sel**2) if sel.size else 0.0) / m)
     return sigma
 
 
-def half_means(x: np.ndarray, v: np.ndarray, clip: float, rows: int) -> np.ndarray:
-    """x: (K, R, W), v: (R, W) bool -> (K, W - 1) robust pair means of one half."""
+def half_means(x: np.ndarray, v: np.ndarray, clip: float, sub: np.ndarray) -> np.ndarray:
+    """x: (K, R, W), v: (R, W) bool, sub: the pilot's rows -> (K, W - 1) robust pair means."""
     k, r, w = x.shape
-    step = max(1, -(-r // rows))
     g = x[:, :, 1:] - x[:, :, :-1]
     ok = v[:, 1:] & v[:, :-1]
-    gs, oks = g[:, ::step], ok[::step]
+    gs, oks = g[:, sub], ok[sub]
     pilot = np.zeros((k, w - 1))
     for c in range(w - 1):
         for ch in range(k):
@@ -131,8 +130,10 @@ def column_offsets(
     v = np.ones((h, w), bool) if valid is None else valid
     half = h // 2
     rows = max(1, pilot_rows // 2)
-    m_top = reject_steps(half_means(x[:, :half], v[:half], clip, rows), step_clip)
-    m_bot = reject_steps(half_means(x[:, half:], v[half:], clip, rows), step_clip)
+    step = max(1, -(-(h - half) // rows))  # the same step in both halves, equally many rows
+    sub = np.arange(min(-(-half // step), -(-(h - half) // step))) * step
+    m_top = reject_steps(half_means(x[:, :half], v[:half], clip, sub), step_clip)
+    m_bot = reject_steps(half_means(x[:, half:], v[half:], clip, sub), step_clip)
     width = max(3, min(width, w // 4))
 
     def profile(m):

@@ -82,7 +82,7 @@ def _robust_scale(
     start = med * K.MAD_TO_SIGMA if channels == 1 else med / math.sqrt(2.0 * math.log(2.0))
     rms = torch.sqrt(sq.sum(1) / count.clamp_min(1.0) / channels)
     sigma = torch.where(start > 0, start, rms)
-    for _ in range(4):
+    for _ in range(2):
         sel = okf & (flat <= clip * sigma[:, None])
         m2 = torch.where(sel, sq, 0.0).sum(1) / sel.sum(1).clamp_min(1)
         sigma = torch.sqrt(m2 / moment)
@@ -113,36 +113,43 @@ def _trimmed_means(
 def _pilot(
     x: torch.Tensor, valid: torch.Tensor | None, clip: float, moment: float, rows: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(pilot pair means (N, K, 1, W - 1), sigma (N,))`` from a strided subsample of at most
-    ``rows`` rows of ``x`` (N, K, R, W): per-pair median, robust scale around it, trimmed mean."""
+    """Per half: ``(pilot pair means (2N, K, 1, W - 1), sigma (2N,))``, top halves first, from a
+    strided subsample of both halves of (N, K, H, W) ``x`` (the same step in both; at most
+    ``rows`` rows, equally many from each): per-pair median, robust scale around it, trimmed
+    mean."""
     k, h = x.shape[1], x.shape[2]
-    step = max(1, (h + rows - 1) // rows)
-    xs = x[:, :, ::step].contiguous()
+    half = h // 2
+    step = max(1, (h - half + rows - 1) // rows)
+    count = min((half + step - 1) // step, (h - half + step - 1) // step)
+    top = torch.arange(count, device=x.device) * step
+    idx = torch.cat([top, top + half])
+    xs = x.index_select(2, idx)
+    xs = torch.cat([xs[:, :, :count], xs[:, :, count:]], 0)  # (2N, K, count, W)
     gs = xs[..., 1:] - xs[..., :-1]
     oks: torch.Tensor | None = None
     if valid is not None:
-        vs = valid[:, :, ::step]
+        vs = valid.index_select(2, idx)
+        vs = torch.cat([vs[:, :, :count], vs[:, :, count:]], 0)
         oks = vs[..., 1:] & vs[..., :-1]
         gt = torch.where(oks, gs, math.nan).transpose(2, 3).contiguous()
         pilot = torch.nan_to_num(torch.nanmedian(gt, dim=3).values, nan=0.0)[:, :, None]
-    else:
-        pilot = gs.transpose(2, 3).contiguous().median(dim=3).values[:, :, None]
+    else:  # torch's median is the lower middle value: the ((n + 1) // 2)-th smallest
+        kth = (gs.shape[2] + 1) // 2
+        pilot = gs.transpose(2, 3).contiguous().kthvalue(kth, dim=3).values[:, :, None]
     sigma = _robust_scale(_magnitude(gs - pilot), oks, clip, moment, k)
     pilot = _trimmed_means(gs, oks, pilot, clip * sigma[:, None, None, None])
     return pilot, sigma
 
 
 def _half_means(
-    x: torch.Tensor, valid: torch.Tensor | None, clip: float, moment: float, rows: int
+    x: torch.Tensor, valid: torch.Tensor | None, pilot: torch.Tensor, limit: torch.Tensor
 ) -> torch.Tensor:
     """Robust means (N, K, W - 1) of the pair differences over the rows of ``x`` (N, K, R, W).
 
-    A difference further than ``clip sigma`` from the pilot (:func:`_pilot` on ``rows`` rows), or
-    invalid, is replaced by the pilot and the mean is taken over all ``R`` rows: one select and one
-    sum, no counts (the fixed point of this imputation is the trimmed mean; one step from the pilot
-    differs from it by ``outlier share * (pilot - trimmed mean)``). These few passes are the cost."""
-    pilot, sigma = _pilot(x, valid, clip, moment, rows)
-    limit = clip * sigma[:, None, None, None].to(x.dtype)
+    A difference further than ``limit`` (N, 1, 1, 1) from ``pilot`` (N, K, 1, W - 1), or invalid,
+    is replaced by the pilot and the mean is taken over all ``R`` rows: one select and one sum, no
+    counts (the fixed point of this imputation is the trimmed mean; one step from the pilot differs
+    from it by ``outlier share * (pilot - trimmed mean)``). These few passes are the stage's cost."""
     if valid is None and x.shape[1] == 1:
         # sum of where(|g - pilot| <= limit, g, pilot) = sum g - limit * sum hardshrink(t, 1) with
         # t = (g - pilot) / limit, and sum g from the column sums of x: no masks, no counts
@@ -237,17 +244,19 @@ def column_offsets(
     half = h // 2
     # each half has its own pilot: the halves must not share anything but the stripes (a shared
     # pilot, imputed at both halves' outliers, made structured scenes look striped)
-    rows = max(1, pilot_rows // 2)
+    n = x.shape[0]
+    pilot, sigma = _pilot(x, valid, clip, moment, max(1, pilot_rows // 2))
+    limit = clip * sigma[:, None, None, None].to(x.dtype)
     v_top = None if valid is None else valid[:, :, :half]
     v_bot = None if valid is None else valid[:, :, half:]
-    m_top = _half_means(x[:, :, :half], v_top, clip, moment, rows)
-    m_bot = _half_means(x[:, :, half:], v_bot, clip, moment, rows)
-    m_top = _reject_steps(m_top, K.DESTRIPE_STEP_CLIP)
-    m_bot = _reject_steps(m_bot, K.DESTRIPE_STEP_CLIP)
+    m_top = _half_means(x[:, :, :half], v_top, pilot[:n], limit[:n])
+    m_bot = _half_means(x[:, :, half:], v_bot, pilot[n:], limit[n:])
+    m = _reject_steps(torch.cat([m_top, m_bot], 0), K.DESTRIPE_STEP_CLIP)
     # a smooth scene profile common to both halves passes the cross-validation: the high-pass
     # must be short against the line, so at most a quarter of it
     width = max(3, min(width, x.shape[-1] // 4))
-    p_top, p_bot = _profile(m_top, width), _profile(m_bot, width)
+    p = _profile(m, width)
+    p_top, p_bot = p[:n], p[n:]
     p_all = (half * p_top + (h - half) * p_bot) / h
     count = torch.ones_like(p_all[:, :1]) if valid is None else valid.sum(2, dtype=torch.float64)
     if shrink == "none":
@@ -255,12 +264,18 @@ def column_offsets(
     local = shrink == "local"
     out = torch.zeros_like(p_all)
     factors: list[torch.Tensor] = []
-    bands = band_widths(width)
-    for i in range(len(bands) + 1):
-        a, b, c = _band(p_top, bands, i), _band(p_bot, bands, i), _band(p_all, bands, i)
+    # octave bands of the three profiles at once: coarsest = p - HP_w0, ..., finest = HP_wlast
+    stack = torch.cat([p_top, p_bot, p_all], 0)
+    upper = stack
+    widths = band_widths(width)
+    for i in range(len(widths) + 1):
+        lower = highpass(stack, widths[i]) if i < len(widths) else torch.zeros_like(stack)
+        band = upper - lower
+        a, b, c = band[:n], band[n : 2 * n], band[2 * n :]
         f = _factor(a, b, c, local, local_width)
         factors.append(f)
         out = out + f * c
+        upper = lower
     return _zero_mean(out, count).to(x.dtype), torch.stack(factors, 0).to(x.dtype)
 
 
@@ -273,14 +288,6 @@ def band_widths(width: int) -> list[int]:
         out.append(w)
         w = w // 2
     return out
-
-
-def _band(p: torch.Tensor, widths: list[int], i: int) -> torch.Tensor:
-    """Band ``i`` of ``p``: ``p - HP_{w_0}(p)`` (coarsest), ``HP_{w_{i-1}} - HP_{w_i}``, ...,
-    ``HP_{w_last}(p)`` (finest); the bands sum to ``p``."""
-    hi = p if i == 0 else highpass(p, widths[i - 1])
-    lo = highpass(p, widths[i]) if i < len(widths) else torch.zeros_like(p)
-    return hi - lo
 
 
 def _factor(
