@@ -69,13 +69,16 @@ def half_means(x: np.ndarray, v: np.ndarray, clip: float, sub: np.ndarray) -> np
     return out
 
 
-def reject_steps(m: np.ndarray, clip: float) -> np.ndarray:
+def reject_steps(m: np.ndarray, clip: float, max_share: float) -> np.ndarray:
     k = m.shape[0]
-    med = np.array([lower_median(m[ch]) for ch in range(k)])[:, None]
+    med = np.median(m, axis=1, keepdims=True)
     mag = np.sqrt(((m - med) ** 2).sum(0))
-    t = lower_median(mag)
-    sigma = t * MAD_TO_SIGMA if k == 1 else t / math.sqrt(2 * math.log(2))
-    return np.where(mag[None, :] > clip * sigma, med, m)
+    t = np.median(mag)
+    sigma = t * MAD_TO_SIGMA if k == 1 else t / stats.rayleigh.median()
+    edge = (mag > clip * sigma) & (sigma > 0)
+    if edge.mean() > max_share:  # a mode of the steps (periodic stripes), not edges
+        return m
+    return np.where(edge[None, :], med, m)
 
 
 def highpass(p: np.ndarray, width: int) -> np.ndarray:
@@ -124,6 +127,7 @@ def column_offsets(
     pilot_rows: int,
     step_clip: float,
     null_z: float,
+    max_share: float,
 ) -> np.ndarray:
     """x: (K, H, W) float64, valid: (H, W) bool or None -> offsets (K, W)."""
     k, h, w = x.shape
@@ -132,8 +136,8 @@ def column_offsets(
     rows = max(1, pilot_rows // 2)
     step = max(1, -(-(h - half) // rows))  # the same step in both halves, equally many rows
     sub = np.arange(min(-(-half // step), -(-(h - half) // step))) * step
-    m_top = reject_steps(half_means(x[:, :half], v[:half], clip, sub), step_clip)
-    m_bot = reject_steps(half_means(x[:, half:], v[half:], clip, sub), step_clip)
+    m_top = reject_steps(half_means(x[:, :half], v[:half], clip, sub), step_clip, max_share)
+    m_bot = reject_steps(half_means(x[:, half:], v[half:], clip, sub), step_clip, max_share)
     width = max(3, min(width, w // 4))
 
     def profile(m):

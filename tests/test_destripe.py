@@ -66,7 +66,16 @@ def test_offsets_match_numpy_reference(shrink, masked):
     for n in range(2):
         v = None if valid is None else valid[n, 0].numpy()
         ref = R.column_offsets(
-            x[n].numpy(), v, 31, 3.0, shrink, 64, 16, K.DESTRIPE_STEP_CLIP, K.DESTRIPE_NULL_Z
+            x[n].numpy(),
+            v,
+            31,
+            3.0,
+            shrink,
+            64,
+            16,
+            K.DESTRIPE_STEP_CLIP,
+            K.DESTRIPE_NULL_Z,
+            K.DESTRIPE_MAX_EDGE_SHARE,
         )
         np.testing.assert_allclose(off[n].numpy(), ref, rtol=0, atol=1e-12)
 
@@ -76,7 +85,16 @@ def test_complex_offsets_match_numpy_reference():
     z = torch.cat([depth, 0.5 * depth.flip(-1)], 1)  # (1, 2, H, W): two channels, one test
     off, _ = column_offsets(z, None, 31, 3.0, "local", 64, 16)
     ref = R.column_offsets(
-        z[0].numpy(), None, 31, 3.0, "local", 64, 16, K.DESTRIPE_STEP_CLIP, K.DESTRIPE_NULL_Z
+        z[0].numpy(),
+        None,
+        31,
+        3.0,
+        "local",
+        64,
+        16,
+        K.DESTRIPE_STEP_CLIP,
+        K.DESTRIPE_NULL_Z,
+        K.DESTRIPE_MAX_EDGE_SHARE,
     )
     np.testing.assert_allclose(off[0].numpy(), ref, rtol=0, atol=1e-12)
 
@@ -340,3 +358,22 @@ def test_input_errors():
         destripe(x, domain="complex", modulation_frequency_hz=F0)
     with pytest.raises(ValueError, match="amplitude is required with domain='complex'"):
         Destripe(domain="complex", modulation_frequency_hz=F0)(x)
+
+
+def test_a_valid_pixel_never_comes_out_invalid():
+    """Offsets of -15 mm on every other column of a 20 mm-deep flat scene, and one row only
+    0.1 mm deep: there the correction (+7.5 mm on the odd columns) would give <= 0, so the input is
+    kept (the package's rule), in both domains. This also checks that a periodic pattern at pi
+    (bimodal column steps) is not taken for edges."""
+    g = torch.Generator().manual_seed(9)
+    h, w = 48, 64
+    offsets = torch.where(torch.arange(w) % 2 == 0, -0.015, 0.0).double()
+    depth = 0.02 + offsets + 0.0005 * torch.randn(h, w, generator=g, dtype=torch.float64)
+    depth[20, 1::2] = 1e-4
+    depth = depth[None, None]
+    # (with wrap=True the complex domain wraps such a pixel to ~7.49 m instead, as the camera)
+    for kw in ({}, {"domain": "complex", "modulation_frequency_hz": F0, "wrap": False}):
+        out = destripe(depth, torch.full_like(depth, 50.0), **kw)
+        assert bool(((out > 0) & torch.isfinite(out)).all())
+        assert torch.equal(out[0, 0, 20, 1::2], depth[0, 0, 20, 1::2])
+        assert float((out - depth)[0, 0, 5, 1::2].mean()) < -0.005  # elsewhere: corrected

@@ -196,3 +196,9 @@ def test_onnx_export_matches_eager_and_keeps_invalid_invalid(tmp_path, module):
     d2, a2 = _inputs(2)  # another frame through the same graph
     out2 = sess.run(None, {"depth": d2.numpy(), "amplitude": a2.numpy()})[0]
     np.testing.assert_allclose(out2, module(d2, a2).numpy(), rtol=0, atol=1e-5)
+
+
+def test_a_valid_pixel_never_comes_out_invalid():
+    m = FixedPatternCorrection([0.5, 0.0])
+    out = m(torch.tensor([[[[0.3, 0.3]]]], dtype=torch.float64))
+    assert out.tolist() == [[[[0.3, 0.3]]]]

@@ -105,15 +105,18 @@ FIG9_RHOS: tuple[float, ...] = tuple(round(0.02 + 0.01 * i, 2) for i in range(15
 
 # --- broadband column / row destriping and fixed-pattern calibration (beyond the paper) --------
 #: Width (columns) of the local-linear high-pass applied to the integrated offset profile of
-#: :func:`~tof_fpn_torch.runtime.destripe`: offsets that vary more slowly than this are left to the
-#: scene (the low-pass depth does not move).
+#: :func:`~tof_fpn_torch.runtime.destripe` (at most a quarter of the line is used): offsets that
+#: vary more slowly are left to the scene (the low-pass depth does not move).
 DESTRIPE_WIDTH: int = 31
 #: Differences between neighbouring columns further than this many robust sigmas from the pilot
 #: are scene structure (edges, bars, clutter), not stripes: the pilot replaces them in the means.
 DESTRIPE_CLIP: float = 3.0
 #: A column step (mean difference between neighbouring columns) further than this many robust
-#: sigmas from the median step is a scene edge that most rows share, not a stripe: it is dropped.
+#: sigmas (MAD) from the median step is a scene edge that most rows share, not a stripe: dropped ...
 DESTRIPE_STEP_CLIP: float = 5.0
+#: ... unless more than this share of the columns would be dropped: then they are a mode of the
+#: steps (periodic stripes such as the paper's at pi make them bimodal), not rare edges.
+DESTRIPE_MAX_EDGE_SHARE: float = 0.25
 #: The cross-validated shrinkage keeps a profile band only as far as the energy common to the top
 #: and the bottom half exceeds this many of its standard deviations without stripes (2.5: the
 #: largest value that keeps >= 10 dB on the real ADI wall; stripe-free scenes then change by

@@ -170,16 +170,20 @@ def _half_means(
 
 def _reject_steps(m: torch.Tensor, clip: float) -> torch.Tensor:
     """Pair means (N, K, C) whose distance from their median over the columns exceeds ``clip``
-    robust sigmas of that distance are scene edges that most rows share (a stripe step is one of
-    a population of similar steps; a wall-to-box edge is not): they are replaced by the median."""
-    med = m.median(dim=-1, keepdim=True).values
+    robust sigmas (MAD) of that distance are scene edges that most rows share (a stripe step is
+    one of a population of similar steps; a wall-to-box edge is rare): they are replaced by the
+    median. Unless they are more than ``DESTRIPE_MAX_EDGE_SHARE`` of the columns: then they are a
+    mode of the steps, not edges (a periodic pattern such as the paper's stripes at pi makes the
+    steps bimodal, and the median sits on one mode), and nothing is rejected. Medians are
+    mid-point ones (``quantile(0.5)``); a zero scale rejects nothing."""
+    med = torch.quantile(m, 0.5, dim=-1, keepdim=True)
     mag = _magnitude(m - med)
-    typical = mag.median(dim=-1, keepdim=True).values
+    typical = torch.quantile(mag, 0.5, dim=-1, keepdim=True)
     # the median of |e| is sigma / MAD_TO_SIGMA for K = 1 and sqrt(2 ln 2) sigma for K = 2
-    sigma = (
-        typical * K.MAD_TO_SIGMA if m.shape[1] == 1 else typical / math.sqrt(2.0 * math.log(2.0))
-    )
-    return torch.where(mag > clip * sigma, med, m)
+    sigma = typical * K.MAD_TO_SIGMA if m.shape[1] == 1 else typical / math.sqrt(2 * math.log(2))
+    edge = (mag > clip * sigma) & (sigma > 0)
+    rare = edge.to(m.dtype).mean(-1, keepdim=True) <= K.DESTRIPE_MAX_EDGE_SHARE
+    return torch.where(edge & rare, med, m)
 
 
 def _window_sums(p: torch.Tensor, width: int) -> list[torch.Tensor]:

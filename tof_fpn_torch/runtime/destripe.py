@@ -161,9 +161,7 @@ def _destripe(
         for d in dims[::-1]:  # columns first
             if _usable(x):
                 y = y - _along(y, valid, d, width, clip, shrink, local_width)
-        if valid is not None:
-            y = torch.where(valid, y, x)
-        return y.reshape(b, c, h, w).to(out_dtype)
+        return _keep(y, x, valid).reshape(b, c, h, w).to(out_dtype)
     assert amplitude is not None
     amp = amplitude.to(work.dtype).reshape(b * c, 1, h, w)
     x = work.reshape(b * c, 1, h, w)
@@ -185,9 +183,18 @@ def _destripe(
     y = x + scale * dphi
     if wrap:
         y = torch.remainder(y, 2.0 * math.pi * scale)
-    if valid is not None:
-        y = torch.where(valid, y, x)
-    return y.reshape(b, c, h, w).to(out_dtype)
+    return _keep(y, x, valid).reshape(b, c, h, w).to(out_dtype)
+
+
+def _keep(y: torch.Tensor, x: torch.Tensor, valid: torch.Tensor | None) -> torch.Tensor:
+    """``y`` at the valid pixels of ``x`` whose output is valid too; ``x`` elsewhere: invalid
+    pixels come out bit-identical, and a valid pixel never comes out invalid (a correction that
+    would push a depth to <= 0 keeps the input there)."""
+    if valid is None:
+        if all_valid(y):  # the usual case: one min/max over the output
+            return y
+        return torch.where(valid_mask(y), y, x)
+    return torch.where(valid & valid_mask(y), y, x)
 
 
 def destripe(

@@ -7,7 +7,8 @@ removed from every frame as
 
 with per-column offsets ``c``, per-row offsets ``r``, per-pixel offsets ``p`` and per-column gains
 ``g`` (1 where none was calibrated), all held as float64 buffers. Invalid pixels
-(:func:`~tof_fpn_torch.runtime.valid_mask`) are returned bit-identical. Unlike
+(:func:`~tof_fpn_torch.runtime.valid_mask`) are returned bit-identical, and where the correction
+would make a valid depth invalid (``<= 0``) the input is kept. Unlike
 :func:`~tof_fpn_torch.runtime.destripe` nothing is estimated at run time: the module is a few
 element-wise operations, exported as they are.
 """
@@ -116,4 +117,5 @@ class FixedPatternCorrection(nn.Module):
         off = self.offset.to(depth.dtype)
         gain = self.gain.to(depth.dtype)
         out = (depth - off) / gain
-        return torch.where(valid_mask(depth, amplitude), out, depth)
+        # invalid pixels come out bit-identical; a valid pixel never comes out invalid
+        return torch.where(valid_mask(depth, amplitude) & valid_mask(out), out, depth)
