@@ -144,6 +144,14 @@ def column_offsets(
         return highpass(np.concatenate([np.zeros((k, 1)), np.cumsum(m, 1)], 1), width)
 
     p_top, p_bot = profile(m_top), profile(m_bot)
+    if k == 2:  # coherent projection: drop the part along the column phasor, times kappa^2
+        s = x.sum(1)  # (2, W)
+        norm = np.hypot(s[0], s[1])
+        u = np.where(norm > 0, s / np.maximum(norm, 1e-30), 0.0)
+        total = np.hypot(x[0], x[1]).sum(0)
+        kappa = np.where(total > 0, norm / np.maximum(total, 1e-30), 0.0)
+        p_top = p_top - kappa**2 * (p_top * u).sum(0) * u
+        p_bot = p_bot - kappa**2 * (p_bot * u).sum(0) * u
     p_all = (half * p_top + (h - half) * p_bot) / h
     count = v.sum(0).astype(np.float64)
     if shrink == "none":

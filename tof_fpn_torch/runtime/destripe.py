@@ -33,7 +33,9 @@ Estimator (details in :mod:`._destripe_core` and docs/destripe.md):
 
 ``domain="complex"`` (needs ``amplitude`` and ``modulation_frequency_hz``) does the same on
 ``z = A e^{j phi}``, ``phi = 4 pi f D / c_L`` (the two parts share the inlier test), where a
-read-out offset is additive, and converts back by the wrapped phase change:
+read-out offset is additive, drops the part of each column's offset along the column's mean phasor
+in proportion to the column's phase coherence (a vertical amplitude texture lies there; see
+:func:`._destripe_core.coherent_projection`), and converts back by the wrapped phase change:
 ``D' = D + c_L / (4 pi f) * angle(z' conj(z))``, re-wrapped into ``[0, c_L / 2f)`` when ``wrap``
 (single-frequency depth; ``wrap=False`` keeps e.g. unwrapped multi-frequency depth as it is).
 
@@ -115,13 +117,12 @@ def _along(
     local_width: int,
 ) -> torch.Tensor:
     """Offsets (N, K, H, W)-broadcastable of (N, K, H, W) ``x`` along dim ``d`` (-1: per column)."""
-    if d == -2:
-        xt = x.transpose(-1, -2)
-        vt = None if valid is None else valid.transpose(-1, -2)
-        off, _ = column_offsets(xt, vt, width, clip, shrink, local_width, K.DESTRIPE_PILOT_ROWS)
-        return off[..., :, None]
-    off, _ = column_offsets(x, valid, width, clip, shrink, local_width, K.DESTRIPE_PILOT_ROWS)
-    return off[..., None, :]
+    xt = x.transpose(-1, -2) if d == -2 else x
+    vt = None if valid is None or d == -1 else valid.transpose(-1, -2)
+    if d == -1:
+        vt = valid
+    off, _ = column_offsets(xt, vt, width, clip, shrink, local_width, K.DESTRIPE_PILOT_ROWS)
+    return off[..., :, None] if d == -2 else off[..., None, :]
 
 
 def _usable(x: torch.Tensor) -> bool:
