@@ -243,11 +243,11 @@ def destripe(
 
     Example:
         >>> g = torch.Generator().manual_seed(0)
-        >>> stripes = 0.01 * torch.randn(1, 1, 1, 64, generator=g)
-        >>> noisy = 2.0 + stripes + 0.001 * torch.randn(1, 1, 48, 64, generator=g)
-        >>> before = (noisy - 2.0).mean(2).std()
-        >>> after = (destripe(noisy) - 2.0).mean(2).std()
-        >>> bool(after < 0.2 * before)
+        >>> stripes = 0.01 * torch.randn(1, 1, 1, 256, generator=g)
+        >>> noisy = 2.0 + stripes + 0.002 * torch.randn(1, 1, 64, 256, generator=g)
+        >>> removed = (noisy - destripe(noisy)).mean(2)  # the offset taken from each column
+        >>> r = torch.corrcoef(torch.cat([removed, stripes[0]]).reshape(2, -1))[0, 1]
+        >>> bool(r > 0.95)  # all but the slowest part (under 1 / 31 cycles per column)
         True
     """
     _check_inputs(depth, amplitude, domain)
