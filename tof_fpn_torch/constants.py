@@ -122,3 +122,32 @@ PAPER_INPUT_PSNR: dict[str, float] = {"fpn": 24.51, "fpn+noise": 21.26}
 FIG9_ODD_ORDERS: tuple[int, ...] = (5, 9, 17, 21, 31, 41, 53)
 FIG9_EVEN_ORDERS: tuple[int, ...] = (8, 12, 20, 28, 40, 52)
 FIG9_RHOS: tuple[float, ...] = tuple(round(0.02 + 0.01 * i, 2) for i in range(15))  # 0.02..0.16
+
+# --- broadband column / row destriping and fixed-pattern calibration (beyond the paper) --------
+#: Width (columns) of the local-linear high-pass applied to the integrated offset profile of
+#: :func:`~tof_fpn_torch.runtime.destripe` (at most a quarter of the line is used): offsets that
+#: vary more slowly are left to the scene (the low-pass depth does not move).
+DESTRIPE_WIDTH: int = 31
+#: Differences between neighbouring columns further than this many robust sigmas from the pilot
+#: are scene structure (edges, bars, clutter), not stripes: the pilot replaces them in the means.
+DESTRIPE_CLIP: float = 3.0
+#: A column step (mean difference between neighbouring columns) further than this many robust
+#: sigmas (MAD) from the median step is a scene edge that most rows share, not a stripe: dropped ...
+DESTRIPE_STEP_CLIP: float = 5.0
+#: ... unless more than this share of the columns would be dropped: then they are a mode of the
+#: steps (periodic stripes such as the paper's at pi make them bimodal), not rare edges.
+DESTRIPE_MAX_EDGE_SHARE: float = 0.25
+#: The cross-validated shrinkage keeps a profile band only as far as the energy common to the top
+#: and the bottom half exceeds this many of its standard deviations without stripes (2.5: the
+#: largest value that keeps >= 10 dB on the real ADI wall; stripe-free scenes then change by
+#: < 0.1 dB, docs/destripe.md).
+DESTRIPE_NULL_Z: float = 2.5
+#: Rows of the strided subsample (half in each half of the frame) on which the robust scale and
+#: the pilot are computed.
+DESTRIPE_PILOT_ROWS: int = 32
+#: Window (columns) of ``shrink="local"``: the cross-validated factor is computed per window.
+DESTRIPE_LOCAL_WIDTH: int = 128
+#: :func:`~tof_fpn_torch.analysis.calibrate_fixed_pattern` calibrates per-pixel offsets (flat
+#: field) only from at least this many frames per group: a pixel's standard error is then at most
+#: a third of one frame's noise.
+CALIBRATION_MIN_PIXEL_FRAMES: int = 9

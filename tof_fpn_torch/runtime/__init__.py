@@ -10,8 +10,12 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.fpn_filter`: :func:`fpn_filter`, :class:`FPNFilter`.
 - :mod:`.fusion`: :func:`amplitude_fusion`, :class:`AmplitudeFusion` (eq. 11).
 - :mod:`.suppression`: :class:`FPNSuppression` (filter + fusion).
+- :mod:`.destripe`: :func:`destripe`, :class:`Destripe` (broadband column / row offsets, one frame).
+- :mod:`.fixed_pattern`: :class:`FixedPatternCorrection` (a calibrated fixed pattern, as buffers).
 """
 
+from .destripe import Destripe, destripe
+from .fixed_pattern import FixedPatternCorrection
 from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
 from .suppression import FPNSuppression
@@ -19,11 +23,14 @@ from .validity import all_valid, valid_mask
 
 __all__ = [
     "AmplitudeFusion",
+    "Destripe",
     "FPNFilter",
     "FPNSuppression",
+    "FixedPatternCorrection",
     "all_valid",
     "amplitude_fusion",
     "amplitude_weight",
+    "destripe",
     "fpn_filter",
     "valid_mask",
 ]
