@@ -191,3 +191,14 @@ def test_onnx_agrees_with_eager_with_the_gate_half_open(cli_onnx):
         None, {"depth": d.numpy(), "amplitude": a.numpy()}
     )
     np.testing.assert_allclose(out, ref.numpy(), rtol=0, atol=1e-5)
+
+
+def test_onnx_refuses_the_single_frame_destriper_with_a_reason(tmp_path):
+    from tof_fpn_torch.runtime import Destripe
+
+    stage = suppression_from_design(destripe=Destripe())
+    with pytest.raises(ValueError, match="TorchScript.*FixedPatternCorrection"):
+        export_onnx(stage, tmp_path / "d.onnx")
+    scripted = export_torchscript(stage)  # TorchScript takes it
+    d, a = _inputs((1, 1, 40, 64), holes=False)
+    torch.testing.assert_close(scripted(d, a), stage(d, a), rtol=0, atol=0)

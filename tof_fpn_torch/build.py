@@ -21,14 +21,16 @@ import torch
 from torch import nn
 
 from . import constants as K
+from .analysis.stripe_energy import column_stripe_energy, structure_mask
 from .analysis.stripes import StripeEstimate, estimate_stripes
 from .cameras import profile
-from .denoise import estimate_noise_k
+from .denoise import estimate_noise_k, estimate_sigma
 from .design import compensate_half_sample, design_fpn, max_rho
-from .runtime import AmplitudeFusion, FPNFilter, FPNSuppression, valid_mask
+from .runtime import AmplitudeFusion, Destripe, FPNFilter, FPNSuppression, destripe, valid_mask
 
 __all__ = [
     "MAX_RIPPLE_DB",
+    "broadband_from_data",
     "filter_from_design",
     "fusion_from_data",
     "suppression_from_data",
@@ -199,7 +201,9 @@ def suppression_from_data(
 ) -> FPNSuppression:
     """A stage with the pieces the data call for (never one the data do not).
 
-    The periodic components :func:`~tof_fpn_torch.analysis.estimate_stripes` reports (false-alarm
+    Broadband column / row offsets: a :class:`~tof_fpn_torch.runtime.Destripe` for the orientations
+    :func:`broadband_from_data` finds (pass ``destripe=`` to choose yourself, None for none). The
+    periodic components :func:`~tof_fpn_torch.analysis.estimate_stripes` reports (false-alarm
     probability ``<= false_alarm``, amplitude over its noise floor) become the notches, their
     orientations ``dim`` (both orientations share one notch set; rho defaults to
     ``min(DEFAULT_RHO, 0.9 max_rho)``). With amplitudes the fusion thresholds are measured too
@@ -210,8 +214,10 @@ def suppression_from_data(
     est: StripeEstimate = estimate_stripes(
         frames, amplitudes, false_alarm=false_alarm, **(estimate_kwargs or {})
     )
+    auto_destripe = "destripe" not in kwargs
     if not est.components:
-        module = FPNSuppression(None, None, destripe=kwargs.get("destripe"))
+        found = broadband_from_data(frames, amplitudes) if auto_destripe else kwargs["destripe"]
+        module = FPNSuppression(None, None, destripe=found)
         module.estimate = est
         return module
     merged: list[float] = []
@@ -228,6 +234,56 @@ def suppression_from_data(
     elif kwargs.get("adaptive", True) and "low" not in kwargs and "camera" not in kwargs:
         fusion = fusion_from_data(frames, amplitudes)
         kwargs.update(low=fusion.low, high=fusion.high)
+    kwargs.setdefault("destripe", None)
     module = suppression_from_design(order, rho, notches=tuple(merged), **kwargs)
+    if auto_destripe:  # what the notch stage leaves: broadband offsets, if any
+        with torch.no_grad():
+            notched = module(frames, amplitudes)
+        module.destripe = broadband_from_data(notched, amplitudes)
     module.estimate = est
     return module
+
+
+def broadband_from_data(
+    frames: torch.Tensor,
+    amplitudes: torch.Tensor | None = None,
+    min_stripe: float = K.GATE_MIN_STRIPE,
+) -> Destripe | None:
+    """A :class:`~tof_fpn_torch.runtime.Destripe` for the orientations with broadband offsets in
+    ``frames``, or None.
+
+    Rule, per orientation: the destriper (whose cross-validated shrinkage leaves most stripe-free
+    frames alone) must (1) move the valid pixels by an RMS of at least ``min_stripe`` times the
+    frames' per-pixel noise (wavelet MAD, :func:`~tof_fpn_torch.denoise.estimate_sigma`; the floor
+    of the periodic detection and the stripe gate) and (2) halve the column-stripe energy
+    (:func:`~tof_fpn_torch.analysis.column_stripe_energy`, the covariance of the top and bottom
+    halves' column profiles) measured away from scene structure (``structure_mask`` at 6 noise
+    sigmas): what it removes must be an offset of the whole column where the scene is quiet, not a
+    thin object or texture the same in both halves (the destriper alone cannot tell those apart).
+    """
+    valid = valid_mask(frames, amplitudes)
+    if not bool(valid.any()):
+        return None
+    x = torch.where(valid, frames, torch.zeros_like(frames)).double()
+    noise = float(estimate_sigma(x, valid=valid).mean())
+    if not noise > 0:
+        return None
+    dims = []
+    for d in (-1, -2):
+        out = destripe(frames, amplitudes, dim=d)
+        change = torch.where(valid, out - frames, 0.0)
+        rms = float(change.double().pow(2).sum() / valid.sum()) ** 0.5
+        if rms < min_stripe * noise:
+            continue
+        before = torch.where(valid, frames, torch.nan)
+        after = torch.where(valid, out, torch.nan)
+        if d == -2:  # row offsets: the same measurement on the transposed frames
+            before, after = before.transpose(-1, -2), after.transpose(-1, -2)
+        quiet = structure_mask(before, 6.0 * noise)
+        e0 = float(column_stripe_energy(before, quiet).covariance.mean())
+        e1 = float(column_stripe_energy(after, quiet).covariance.mean())
+        if e0 > 0 and e1 <= 0.5 * e0:
+            dims.append(d)
+    if not dims:
+        return None
+    return Destripe(dim=tuple(dims) if len(dims) > 1 else dims[0])

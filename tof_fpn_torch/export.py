@@ -100,6 +100,16 @@ def export_onnx(
     _require_onnx()
     import onnx
 
+    from .runtime import Destripe
+
+    if any(isinstance(m, Destripe) for m in module.modules()):
+        raise ValueError(
+            "a Destripe module estimates its offsets from each frame with data-dependent robust "
+            "statistics, which torch.export cannot trace: export it with TorchScript, or calibrate "
+            "a fixed pattern (tof_fpn_torch.analysis.calibrate_fixed_pattern) and export its "
+            "FixedPatternCorrection, which ONNX takes"
+        )
+
     model = copy.deepcopy(module).eval()
     if isinstance(model, FPNFilter):
         names = ["x"]

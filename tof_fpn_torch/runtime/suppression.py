@@ -1,14 +1,17 @@
 r"""The FPN suppression stage: broadband destriping, notch filtering, amplitude fusion, each optional.
 
 Georgiev et al. (IEEE SAS 2015, Sec. III-IV) filter with a notch FIR and fuse the filtered and raw
-depth by amplitude (eq. 11). :class:`FPNSuppression` composes:
+depth by amplitude (eq. 11). :class:`FPNSuppression` composes, in this order:
 
-1. ``destripe`` (optional): a broadband column / row offset remover (beyond the paper);
-2. ``filter`` (optional): the notch :class:`FPNFilter`;
-3. ``fusion`` (optional): :class:`AmplitudeFusion` of the notch output with its input;
-4. ``gate`` (default on): the notch part (2 + 3) is applied as ``y + g (notched - y)`` with the
+1. ``filter`` (optional): the notch :class:`FPNFilter` (the periodic stripes);
+2. ``fusion`` (optional): :class:`AmplitudeFusion` of the notch output with its input;
+3. ``gate`` (default on): the notch part (1 + 2) is applied as ``y + g (notched - y)`` with the
    per-image :func:`~tof_fpn_torch.runtime.gate.stripe_gate` ``g``, which stays 0 unless the frame
-   has stripes the notch removes, so a stripe-free frame comes out as it went in.
+   has stripes the notch removes, so a stripe-free frame comes out as it went in;
+4. ``destripe`` (optional): a broadband column / row offset remover (beyond the paper) for what
+   the notch leaves: offsets at all frequencies. It runs last, so the periodic stripes, whose
+   strength follows the amplitude pixel by pixel, are the notch's, and the column-average
+   estimate of the destriper sees only the broadband rest.
 
 Build one with :func:`tof_fpn_torch.build.suppression_from_design` (the paper's ``{20, 0.14}``,
 unit DC gain) or :func:`tof_fpn_torch.build.suppression_from_data` (pieces picked from what is
@@ -139,24 +142,30 @@ class FPNSuppression(nn.Module):
                 amp_ok = bool(lo >= 0) and bool(hi < math.inf)
             if not amp_ok or not all_valid(depth):
                 mask = valid_mask(depth, amplitude)
-        y = depth
+        y = self._notch(depth, amplitude, mask)
         destripe = self.destripe
         if destripe is not None:
             y = destripe(y, amplitude)
+        return y
+
+    def _notch(
+        self, depth: torch.Tensor, amplitude: torch.Tensor | None, mask: torch.Tensor | None
+    ) -> torch.Tensor:
+        """Steps 1-3: the gated notch filter and fusion."""
         notch = self.filter
         if notch is None:
-            return y
-        filtered = notch(y, mask)
+            return depth
+        filtered = notch(depth, mask)
         out = filtered
         fusion = self.fusion
         if fusion is not None and amplitude is not None:
-            out = _fuse(filtered, y, amplitude, fusion.low, fusion.high, fusion.floor)
+            out = _fuse(filtered, depth, amplitude, fusion.low, fusion.high, fusion.floor)
         if not self.gate:
             return out
         g = stripe_gate(
-            y, filtered, mask, notch.dims, notch.notches, self.noise_gain, self.min_stripe
+            depth, filtered, mask, notch.dims, notch.notches, self.noise_gain, self.min_stripe
         )
-        blended = y + g.to(y.dtype) * (out - y)
+        blended = depth + g.to(depth.dtype) * (out - depth)
         if mask is None:
             return blended
         return torch.where(mask, blended, depth)
