@@ -41,6 +41,17 @@ ALLOWED: dict[str, set[str]] = {
         "cameras",
     },
     "export": {"runtime"},
+    "learn": {
+        "runtime",
+        "build",
+        "denoise",
+        "analysis",
+        "sim",
+        "design",
+        "cameras",
+        "plotting",
+        "io",
+    },
     # the file layer: beside the simulator (never imports it), reads the validity rule and the
     # camera profile names
     "io": {"runtime", "cameras"},
@@ -55,6 +66,8 @@ ALLOWED: dict[str, set[str]] = {
         "export",
         "plotting",
         "cameras",
+        "learn",
+        "io",
     },
 }
 #: third-party packages a layer may import (beyond the standard library)

@@ -19,6 +19,7 @@ from .fixed_pattern import FixedPatternCorrection
 from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
 from .suppression import FPNSuppression
+from .trainable import KeepZeros, TrainableFusion, freeze, keep_zeros
 from .validity import all_valid, valid_mask
 
 __all__ = [
@@ -33,4 +34,8 @@ __all__ = [
     "destripe",
     "fpn_filter",
     "valid_mask",
+    "KeepZeros",
+    "TrainableFusion",
+    "freeze",
+    "keep_zeros",
 ]

@@ -51,11 +51,11 @@ Amplitude: in ``domain="depth"`` it only extends the validity rule (finite, ``>=
 import math
 
 import torch
-from torch import nn
 
 from .. import constants as K
 from ._checks import check_image, check_same_shape, normalize_dims
 from ._destripe_core import column_offsets
+from ._stage import Float32Stage
 from .validity import all_valid, valid_mask
 
 __all__ = ["Destripe", "destripe"]
@@ -259,7 +259,7 @@ def destripe(
     )
 
 
-class Destripe(nn.Module):
+class Destripe(Float32Stage):
     r"""Broadband column / row offset removal, the module form of :func:`destripe`.
 
     Holds the settings (no learned or fixed coefficients: the offsets are estimated from each
@@ -321,7 +321,7 @@ class Destripe(nn.Module):
             s += f", modulation_frequency_hz={self.modulation_frequency_hz:g}, wrap={self.wrap}"
         return s
 
-    def forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
+    def _forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
         check_image(depth, "depth")
         if amplitude is not None:
             check_image(amplitude, "amplitude")
