@@ -269,13 +269,18 @@ def _tiff_write(src: Path, dst: Path, arr: np.ndarray) -> None:
 
 
 def _npz_write(src: Path, dst: Path, arr: np.ndarray) -> None:
+    """Copy every entry (name, date, compression, zip64 or not), the depth's content replaced."""
     with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", allowZip64=True) as zout:
-        for info in zin.infolist():
-            if info.filename == "depth.npy":
-                with zout.open(info, "w", force_zip64=True) as fh:
+        for old in zin.infolist():
+            info = zipfile.ZipInfo(old.filename, date_time=old.date_time)
+            info.compress_type = old.compress_type
+            info.external_attr = old.external_attr
+            zip64 = old.extract_version >= zipfile.ZIP64_VERSION  # written with zip64 headers
+            with zout.open(info, "w", force_zip64=zip64) as fh:
+                if old.filename == "depth.npy":
                     np.lib.format.write_array(fh, arr, allow_pickle=False)
-            else:
-                zout.writestr(info, zin.read(info))
+                else:
+                    fh.write(zin.read(old))
 
 
 def write_like(src, dst, depths: dict[str, np.ndarray], sets: list[FrameSet]) -> Path:
