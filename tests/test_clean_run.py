@@ -13,10 +13,10 @@ import torch
 from _clean_data import png_folder, tree
 
 from tof_fpn_torch import io as tio
-from tof_fpn_torch.cli import main
 from tof_fpn_torch.clean import CleanConfig, build_pipeline, clean
 from tof_fpn_torch.clean import work as clean_work
 from tof_fpn_torch.clean.manifest import read_manifest
+from tof_fpn_torch.cli import main
 
 
 def _done_counts(out) -> dict[str, int]:
@@ -238,7 +238,8 @@ def test_a_failed_write_leaves_nothing_under_the_output_name(tmp_path, monkeypat
 
 def test_manifest_records_status_timing_and_inputs(tmp_path):
     png_folder(tmp_path / "in", 3, sub_every=0)
-    clean(str(tmp_path / "in"), str(tmp_path / "out"), CleanConfig(denoise="nlm"))
+    cfg = CleanConfig(denoise="nlm", denoise_options={"patch_distance": 3})
+    clean(str(tmp_path / "in"), str(tmp_path / "out"), cfg)
     lines = (tmp_path / "out" / "manifest.jsonl").read_text().splitlines()
     start, *files, end = (json.loads(s) for s in lines)
     assert start["event"] == "start" and start["pipeline"]["denoise"].startswith("NonLocalMeans")
