@@ -66,7 +66,7 @@ def test_ray_resumes_like_the_local_engine(local_ray, mixed, tmp_path, capsys):
     ref = tmp_path / "ref"
     clean(str(mixed), str(ref), CONFIG)
     out = tmp_path / "out"
-    argv = ["clean", mixed, out, "--engine", "ray", "--concurrency", "2", "--quiet"]
+    argv = ["clean", mixed, out, "--engine", "ray", "--concurrency", "1", "--quiet"]
     argv += ["--destripe", "columns", "--batch", "4"]
     assert main([str(a) for a in argv]) == 1  # the broken file
     for name in ("f003_depth.png", "wide/f002_depth.png", "stack.npz"):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -253,3 +254,22 @@ def test_manifest_records_status_timing_and_inputs(tmp_path):
         assert rec["outputs"] == [rec["file"], rec["file"].replace("_depth", "_amplitude")]
         assert len(rec["input"]["size"]) == 2 and rec["read_s"] >= 0 and rec["write_s"] > 0
     assert torch.get_num_threads() >= 1
+
+
+def test_readme_clean_command_works_as_written(tmp_path, capsys, monkeypatch):
+    import re
+    import shlex
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = re.search(r"<!-- clean-command -->\s*```bash\n(.*?)```", text, re.S)
+    assert block, "README has no <!-- clean-command --> block"
+    words = shlex.split(block.group(1).strip())
+    assert words[:2] == ["tof-fpn", "clean"] and len(block.group(1).strip().splitlines()) == 1
+    monkeypatch.chdir(tmp_path)
+    png_folder(tmp_path / words[2], 3)
+    status, out, err = _cli([*words[1:], "--quiet"], capsys)
+    assert status == 0, err
+    assert (
+        f"created directory {words[3]}" in out
+        and (tmp_path / words[3] / "manifest.jsonl").is_file()
+    )
