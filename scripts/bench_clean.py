@@ -5,9 +5,11 @@ sloped scene in mm, stripes at pi and 2 pi / 3, noise, 1 % invalid pixels; ampli
 low-sensing range). Stage: the FPN stage only (the default ``CleanConfig``: notch from the design,
 camera fusion, gate). Measured in one process, the same files, best of ``--repeats``:
 
-* **plain loop**: for each pair ``imageio.v3.imread`` depth and amplitude, mm -> metres (0 -> NaN),
+* **plain loop** (with torch's default thread count and with one thread; the faster one is the
+  reference of the "vs plain loop" column): for each pair ``imageio.v3.imread`` depth and amplitude, mm -> metres (0 -> NaN),
   the module, metres -> mm, ``imageio.v3.imwrite`` the depth (the amplitude is not rewritten);
-* **tof-fpn clean** (:func:`tof_fpn_torch.clean.clean`) with ``--workers 0`` and ``--workers 2``:
+* **tof-fpn clean** (:func:`tof_fpn_torch.clean.clean`) with ``--workers 0`` (default threads and
+  one thread) and ``--workers 2`` (one torch thread per worker):
   end to end (planning, manifest, worker start-up, atomic writes, the amplitude copied).
 
 Frames/s are wall-clock; the shares of decoding, compute and encoding come from the per-step
@@ -110,10 +112,30 @@ def main() -> None:
         src = work / "in"
         src.mkdir()
         make_frames(src, args.frames)
+        default_threads = torch.get_num_threads()
+
+        def threads(n, fn):
+            def run(d):
+                torch.set_num_threads(n)
+                try:
+                    return fn(d)
+                finally:
+                    torch.set_num_threads(default_threads)
+
+            return run
+
         runs = {
-            "plain loop (imageio + module)": lambda d: plain_loop(src, d),
-            "tof-fpn clean --workers 0": lambda d: run_clean(src, d, 0),
-            "tof-fpn clean --workers 2": lambda d: run_clean(src, d, 2),
+            f"plain loop, {default_threads} torch threads": threads(
+                default_threads, lambda d: plain_loop(src, d)
+            ),
+            "plain loop, 1 torch thread": threads(1, lambda d: plain_loop(src, d)),
+            f"tof-fpn clean --workers 0 ({default_threads} threads)": threads(
+                default_threads, lambda d: run_clean(src, d, 0)
+            ),
+            "tof-fpn clean --workers 0 --threads 1": threads(1, lambda d: run_clean(src, d, 0)),
+            "tof-fpn clean --workers 2 (1 thread each)": threads(
+                default_threads, lambda d: run_clean(src, d, 2)
+            ),
         }
         best: dict[str, dict] = {}
         for r in range(args.repeats):
@@ -125,7 +147,7 @@ def main() -> None:
                 res["cpu_seconds"] = _cpu() - cpu0
                 if name not in best or res["seconds"] < best[name]["seconds"]:
                     best[name] = res
-        base = best["plain loop (imageio + module)"]["seconds"]
+        base = min(v["seconds"] for k, v in best.items() if k.startswith("plain loop"))
         rows = []
         for name, res in best.items():
             total = sum(res["steps"].values())

@@ -273,3 +273,10 @@ def test_readme_clean_command_works_as_written(tmp_path, capsys, monkeypatch):
         f"created directory {words[3]}" in out
         and (tmp_path / words[3] / "manifest.jsonl").is_file()
     )
+
+
+def test_progress_bar_shows_rate_and_eta(tmp_path, capsys):
+    png_folder(tmp_path / "in", 3, sub_every=0)
+    clean(str(tmp_path / "in"), str(tmp_path / "out"), progress=True)
+    err = capsys.readouterr().err
+    assert "clean: 100%" in err and "3/3" in err and "file/s" in err and "<00:00" in err

@@ -39,7 +39,6 @@ import tifffile
 import torch
 from PIL import Image, PngImagePlugin
 
-from ..runtime.validity import valid_mask
 from ._common import (
     FormatError,
     amplitude_from_stored,
@@ -227,8 +226,9 @@ def encode_depth(fs: FrameSet, depth: torch.Tensor) -> tuple[np.ndarray, int]:
     result (which the run-time stages never give) keeps the input value. Returns the array and
     the number of valid pixels clamped or kept that way."""
     stored = fs.depth
-    d_in, a_in = frame_set_tensors(fs, allow_empty=True)
-    valid = valid_mask(d_in, a_in)[:, 0].numpy()
+    with np.errstate(invalid="ignore"):  # valid_mask's rule on the stored values (scale > 0)
+        valid = (stored > 0) & np.isfinite(stored)
+        valid &= (fs.amplitude >= 0) & np.isfinite(fs.amplitude)
     units = depth.detach().cpu().double()[:, 0].numpy() / fs.depth_scale
     finite = np.isfinite(units)
     safe = np.where(finite, units, 1.0)
