@@ -280,3 +280,13 @@ def test_progress_bar_shows_rate_and_eta(tmp_path, capsys):
     clean(str(tmp_path / "in"), str(tmp_path / "out"), progress=True)
     err = capsys.readouterr().err
     assert "clean: 100%" in err and "3/3" in err and "file/s" in err and "<00:00" in err
+
+
+def test_a_single_file_input_finds_its_partner(tmp_path):
+    png_folder(tmp_path / "in", 2, sub_every=0)
+    rep = clean(str(tmp_path / "in" / "f001_amplitude.png"), str(tmp_path / "out"))
+    assert (rep.done, rep.jobs) == (1, 1)
+    assert {p.name for p in (tmp_path / "out").glob("*.png")} == {
+        "f001_depth.png",
+        "f001_amplitude.png",
+    }

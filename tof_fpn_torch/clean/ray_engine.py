@@ -125,20 +125,21 @@ def run_ray(
         items = [{"group": pickle.dumps(g)} for g in groups]
         ds = ray.data.from_items(items, override_num_blocks=len(items))
         ds = ds.map_batches(_load, batch_size=1, fn_kwargs={"config": config})
+        blob, size, dev = pickle.dumps(pipeline.cpu()), config.batch, "cuda" if gpu else "cpu"
+
+        class _Bound(_Compute):  # the module travels with the class, not as an object-store arg
+            def __init__(self) -> None:
+                super().__init__(blob, size, dev)
+
         ds = ds.map_batches(
-            _Compute,
+            _Bound,
             batch_size=1,
             compute=ray.data.ActorPoolStrategy(size=concurrency),
             num_gpus=1 if gpu else 0,
-            fn_constructor_kwargs={
-                "pipeline_blob": pickle.dumps(pipeline.cpu()),
-                "batch": config.batch,
-                "device": "cuda" if gpu else "cpu",
-            },
         )
         ds = ds.map_batches(_write, batch_size=1, fn_kwargs={"token": token, "root": root})
-        for batch in ds.iter_batches(batch_size=1, batch_format="numpy"):
-            yield [rec for text in batch["records"] for rec in json.loads(text)]
+        for rows in ds.iter_batches(batch_size=1, batch_format="numpy"):
+            yield [rec for text in rows["records"] for rec in json.loads(text)]
             if stop():
                 return
     finally:
