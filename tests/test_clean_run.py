@@ -290,3 +290,12 @@ def test_a_single_file_input_finds_its_partner(tmp_path):
         "f001_depth.png",
         "f001_amplitude.png",
     }
+
+
+def test_a_run_stopped_before_its_manifest_resumes(tmp_path):
+    png_folder(tmp_path / "in", 2, sub_every=0)
+    clean(str(tmp_path / "in"), str(tmp_path / "ref"))
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "clean.toml").write_bytes((tmp_path / "ref" / "clean.toml").read_bytes())
+    rep = clean(str(tmp_path / "in"), str(tmp_path / "out"))
+    assert rep.done == 2 and tree(tmp_path / "out") == tree(tmp_path / "ref")

@@ -97,7 +97,8 @@ def check_paths(input_path: str, output: str) -> None:
     if os.path.lexists(output) and not os.path.isdir(output):
         raise ValueError(f"OUTPUT {output!r} is a file; it must be a directory (made if missing)")
     if os.path.isdir(output) and any(os.scandir(output)):
-        if not os.path.isfile(os.path.join(output, MANIFEST)):
+        ours = (os.path.isfile(os.path.join(output, n)) for n in (MANIFEST, SAVED_CONFIG))
+        if not any(ours):  # clean.toml alone: a run stopped before its manifest was opened
             raise ValueError(
                 f"OUTPUT {output!r} is not empty and holds no {MANIFEST} (not a tof-fpn clean "
                 "output); choose a new or empty directory"

@@ -114,14 +114,22 @@ def _calibration(jobs, config: CleanConfig):
 
 @contextlib.contextmanager
 def _signals():
-    """Catch SIGTERM / SIGINT into a flag (only in the main thread, where Python can)."""
+    """Catch SIGTERM / SIGINT into a flag (only in the main thread, where Python can); a second
+    signal ends the process at once (atomic writes keep the output consistent)."""
     caught: list[int] = []
     if threading.current_thread() is not threading.main_thread():
         yield caught
         return
     old = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+
+    def handler(signum, frame):
+        if caught:  # a second signal: stop now, the default way (resume still works)
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+        caught.append(signum)
+
     for s in old:
-        signal.signal(s, lambda signum, frame: caught.append(signum))
+        signal.signal(s, handler)
     try:
         yield caught
     finally:
