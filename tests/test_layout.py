@@ -55,6 +55,8 @@ ALLOWED: dict[str, set[str]] = {
     # the file layer: beside the simulator (never imports it), reads the validity rule and the
     # camera profile names
     "io": {"runtime", "cameras"},
+    # tof-fpn clean: the pipeline over files (docs/clean.md)
+    "clean": {"runtime", "build", "denoise", "io", "cameras", "analysis"},
     "cli": {
         "runtime",
         "design",
@@ -68,6 +70,7 @@ ALLOWED: dict[str, set[str]] = {
         "cameras",
         "learn",
         "io",
+        "clean",
     },
 }
 #: third-party packages a layer may import (beyond the standard library)
@@ -79,7 +82,8 @@ THIRD_PARTY: dict[str, set[str]] = {
     "sim": {"torch"},
     "plotting": {"matplotlib"},
     "cameras": set(),
-    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av"},
+    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av", "PIL"},
+    "clean": {"torch", "numpy", "tqdm", "ray", "tomli"},
 }
 
 

@@ -151,3 +151,12 @@ DESTRIPE_LOCAL_WIDTH: int = 128
 #: field) only from at least this many frames per group: a pixel's standard error is then at most
 #: a third of one frame's noise.
 CALIBRATION_MIN_PIXEL_FRAMES: int = 9
+
+# --- tof-fpn clean (tof_fpn_torch.clean) -------------------------------------------------------
+#: Files per group and frames per compute batch of ``tof-fpn clean``: the batches are fixed by the
+#: sorted file list, so that a resumed run or the Ray engine computes every frame in the same batch
+#: (batched torch kernels differ in the last bits between batch sizes).
+CLEAN_BATCH: int = 8
+#: Frames (the first in file order) on which ``auto`` / ``data`` stages of ``tof-fpn clean`` are
+#: measured when the run starts.
+CLEAN_CALIBRATION_FRAMES: int = 8
