@@ -182,10 +182,12 @@ def test_zeros_hold_while_training_and_move_without_keep_zeros():
     assert float((held.taps.detach() - before).abs().max()) > 1e-3  # it did train
     assert max(_notch_gains(held.taps)) < 1e-5
     assert torch.allclose(held.taps.detach(), held.taps.detach().flip(0))  # linear phase kept
+    assert float(held.taps.detach().sum()) == pytest.approx(1.0, abs=1e-6)  # no depth scaling
     # the control: the same loss on the plain trainable taps moves the zeros
     free = suppression_from_design(gate=False, trainable=True).filter
     _push_towards_identity(free)
     assert max(_notch_gains(free.taps)) > 1e-2
+    assert abs(float(free.taps.detach().sum()) - 1.0) > 1e-3
 
 
 def test_trainable_fusion_starts_as_the_fixed_fusion_and_learns_its_thresholds():
@@ -434,10 +436,10 @@ def test_quick_example_runs_end_to_end(tmp_path):
         it = items[0]
         assert len(it["losses"]) == res["settings"]["steps"]
         assert all(math.isfinite(v) for v in it["losses"])
-        if "export" in it:
-            assert it["export"]["torchscript_max_diff"] <= 1e-5
-            assert it["export"]["torchscript_invalid_kept"]
-            assert it["export"]["onnx_max_diff"] <= 1e-5 and it["export"]["onnx_invalid_kept"]
+        assert math.isfinite(it["adi"]["reduction_db"])
+    ex = res["runs"]["trainable"][0]["export"]  # the whole model, trained stage + network
+    assert ex["torchscript_max_diff"] <= 1e-5 and ex["torchscript_invalid_kept"]
+    assert ex["onnx_max_diff"] <= 1e-5 and ex["onnx_invalid_kept"]
     assert max(res["runs"]["trainable"][0]["taps"]["notch_gains"]) < 1e-5
     assert (out / "curves.png").stat().st_size > 1000
     # the report shows the JSON's numbers, a row per front end

@@ -1,13 +1,17 @@
 r"""A compact learned depth denoiser and the whole model: front end + network, invalid pixels kept.
 
 :class:`DnCNN` is a small residual CNN (Zhang et al., IEEE TIP 2017, "Beyond a Gaussian denoiser"),
-here with three input channels: the depth (metres, minus its per-image valid mean), the amplitude
-(``log1p``, minus its per-image mean) and the validity mask; it predicts a depth correction.
+here with four input channels: the depth (metres, minus its per-image valid mean), what the front
+end removed from it (metres; zero without a front end), the amplitude (``log1p``, minus its
+per-image mean) and the validity mask; it predicts a depth correction.
 
 :class:`DepthModel` is what is trained and exported: ``front_end(depth, amplitude)`` (any module
 with that signature, e.g. :class:`~tof_fpn_torch.runtime.FPNSuppression`, or None), then the
 network on the result with invalid pixels filled by the image's valid mean (a network must see
 numbers), then the input put back at every invalid pixel: invalid stays invalid, bit for bit.
+The network also sees ``depth - front_end(depth)``: a linear notch removes scene detail at the
+FPN frequencies with the stripes, and without that channel the network could not put it back
+(measured: the stage in front lost 0.7 dB against the network alone; ``docs/learn.md``).
 TorchScript- and ONNX-exportable (the front end frozen first, see
 :func:`tof_fpn_torch.runtime.freeze`).
 """
@@ -24,7 +28,7 @@ __all__ = ["DepthModel", "DnCNN"]
 
 
 class DnCNN(nn.Module):
-    """Residual CNN: ``depth + net([depth, amplitude, valid])`` on (B, 1, H, W) inputs.
+    """Residual CNN: ``depth + net([depth, removed, amplitude, valid])`` on (B, 1, H, W) inputs.
 
     Args:
         depth_layers: convolution layers (>= 2).
@@ -37,7 +41,7 @@ class DnCNN(nn.Module):
             raise ValueError(f"depth_layers must be an int >= 2, got {depth_layers!r}")
         if isinstance(channels, bool) or not isinstance(channels, int) or channels < 1:
             raise ValueError(f"channels must be an int >= 1, got {channels!r}")
-        layers: list[nn.Module] = [nn.Conv2d(3, channels, 3, padding=1), nn.ReLU()]
+        layers: list[nn.Module] = [nn.Conv2d(4, channels, 3, padding=1), nn.ReLU()]
         for _ in range(depth_layers - 2):
             layers += [nn.Conv2d(channels, channels, 3, padding=1), nn.ReLU()]
         last = nn.Conv2d(channels, 1, 3, padding=1)
@@ -47,14 +51,18 @@ class DnCNN(nn.Module):
         self.net = nn.Sequential(*layers)
 
     def forward(
-        self, depth: torch.Tensor, amplitude: torch.Tensor, valid: torch.Tensor
+        self,
+        depth: torch.Tensor,
+        amplitude: torch.Tensor,
+        valid: torch.Tensor,
+        removed: torch.Tensor,
     ) -> torch.Tensor:
         v = valid.to(depth.dtype)
         count = v.sum((-2, -1), keepdim=True).clamp_min(1.0)
         mean_d = (depth * v).sum((-2, -1), keepdim=True) / count
         la = torch.log1p(amplitude.clamp_min(0.0))
         mean_a = (la * v).sum((-2, -1), keepdim=True) / count
-        x = torch.cat([(depth - mean_d) * v, (la - mean_a) * v, v], 1)
+        x = torch.cat([(depth - mean_d) * v, removed * v, (la - mean_a) * v, v], 1)
         return depth + self.net(x)
 
 
@@ -62,7 +70,7 @@ class DepthModel(nn.Module):
     """Front end, then the network; invalid pixels come out as they went in.
 
     Args:
-        network: a module ``(depth, amplitude, valid) -> depth`` (e.g. :class:`DnCNN`).
+        network: a module ``(depth, amplitude, valid, removed) -> depth`` (e.g. :class:`DnCNN`).
         front_end: a module ``(depth, amplitude) -> depth`` or None.
 
     Shape:
@@ -88,5 +96,7 @@ class DepthModel(nn.Module):
         mean = mean / v.sum((-2, -1), keepdim=True).clamp_min(1.0)
         filled = torch.where(valid, x, mean.expand_as(x))
         amp = torch.where(valid, amplitude, torch.zeros_like(amplitude))
-        out = self.network(filled, amp, valid)
+        # what the front end took away, so that the network can put back what it should not have
+        removed = torch.where(valid, depth - x, torch.zeros_like(x))
+        out = self.network(filled, amp, valid, removed)
         return torch.where(valid, out, depth)

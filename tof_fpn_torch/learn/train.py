@@ -36,20 +36,24 @@ FRONT_ENDS: tuple[str, ...] = ("none", "fixed", "trainable", "fixed+nlm")
 CALIBRATION_SEED = 777
 #: the stripe gate of the fixed front ends (see the module docstring)
 GATE = False
+#: search half-width of the NLM in ``fixed+nlm`` (7 x 7 windows: NLM is most of that run's time)
+NLM_SEARCH = 3
 EVALUATION_SEED = 10_000
 
 
 @dataclass(frozen=True)
 class Settings:
-    """One training run: ``steps`` Adam steps of ``batch`` frames of ``size``."""
+    """One training run: ``steps`` Adam steps (learning rate ``lr``, cosine decay to 0) of
+    ``batch`` frames of ``size``, drawn by ``workers`` DataLoader workers; the network is
+    ``DnCNN(layers, channels)``."""
 
-    steps: int = 150
+    steps: int = 300
     batch: int = 8
-    size: tuple[int, int] = (64, 64)
+    size: tuple[int, int] = (48, 48)
     lr: float = 1e-3
     workers: int = 0
     layers: int = 6
-    channels: int = 32
+    channels: int = 24
 
 
 class _StageThenDenoiser(nn.Module):
@@ -86,7 +90,9 @@ def make_model(front: str, thresholds: tuple[float, float], settings: Settings) 
     stage = suppression_from_design(low=low, high=high, gate=GATE)
     if front == "fixed":
         return DepthModel(net, stage)
-    return DepthModel(net, _StageThenDenoiser(stage, NonLocalMeans(patch_size=5, patch_distance=5)))
+    return DepthModel(
+        net, _StageThenDenoiser(stage, NonLocalMeans(patch_size=5, patch_distance=NLM_SEARCH))
+    )
 
 
 @dataclass
@@ -108,6 +114,7 @@ def train(front: str, seed: int, settings: Settings, thresholds: tuple[float, fl
     if front_params:
         groups.append({"params": front_params, "lr": 0.1 * settings.lr})
     opt = torch.optim.Adam(groups)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(1, settings.steps))
     data = SimulatedFrames(settings.size, seed=seed, length=settings.steps * settings.batch)
     loader = DataLoader(data, batch_size=settings.batch, num_workers=settings.workers)
     out = Trained(model)
@@ -120,6 +127,7 @@ def train(front: str, seed: int, settings: Settings, thresholds: tuple[float, fl
         opt.zero_grad()
         loss.backward()
         opt.step()
+        schedule.step()
         out.losses.append(float(loss.detach()))
     out.seconds = time.perf_counter() - t0
     model.eval()
