@@ -47,7 +47,7 @@ class Settings:
     ``batch`` frames of ``size``, drawn by ``workers`` DataLoader workers; the network is
     ``DnCNN(layers, channels)``."""
 
-    steps: int = 300
+    steps: int = 240
     batch: int = 8
     size: tuple[int, int] = (48, 48)
     lr: float = 1e-3

@@ -119,15 +119,15 @@ class TrainableFusion(nn.Module):
 
     @property
     def low(self) -> float:
-        return float(self.log_low.exp())
+        return float(self.log_low.detach().exp())
 
     @property
     def high(self) -> float:
-        return float(self.log_low.exp() + self.log_span.exp())
+        return float(self.log_low.detach().exp() + self.log_span.detach().exp())
 
     @property
     def floor(self) -> float:
-        return float(torch.sigmoid(self.logit_floor))
+        return float(torch.sigmoid(self.logit_floor.detach()))
 
     def forward(
         self, filtered: torch.Tensor, depth: torch.Tensor, amplitude: torch.Tensor
