@@ -12,8 +12,10 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.suppression`: :class:`FPNSuppression` (filter + fusion).
 - :mod:`.destripe`: :func:`destripe`, :class:`Destripe` (broadband column / row offsets, one frame).
 - :mod:`.fixed_pattern`: :class:`FixedPatternCorrection` (a calibrated fixed pattern, as buffers).
+- :mod:`.complex_pattern`: :class:`ComplexPatternCorrection` (a calibrated complex-domain pattern).
 """
 
+from .complex_pattern import ComplexPatternCorrection
 from .destripe import Destripe, destripe
 from .fixed_pattern import FixedPatternCorrection
 from .fpn_filter import FPNFilter, fpn_filter
@@ -24,6 +26,7 @@ from .validity import all_valid, valid_mask
 
 __all__ = [
     "AmplitudeFusion",
+    "ComplexPatternCorrection",
     "Destripe",
     "FPNFilter",
     "FPNSuppression",
