@@ -38,6 +38,7 @@ import torch
 
 from tof_fpn_torch.build import suppression_from_design
 from tof_fpn_torch.clean import CleanConfig, clean
+from tof_fpn_torch.constants import CLEAN_BATCH
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -82,6 +83,31 @@ def plain_loop(src: Path, dst: Path) -> dict:
         t["compute"] += t2 - t1
         t["write"] += t3 - t2
     return {"seconds": time.perf_counter() - start, "steps": t}
+
+
+def module_alone(src: Path, threads: int, repeats: int) -> dict:
+    """The run-time filter's own throughput: the same frames, already in memory as one tensor,
+    through the module in batches of ``CLEAN_BATCH`` (what ``tof-fpn clean`` computes), best of
+    ``repeats``: the floor that the compute share of a file run can approach."""
+    module = suppression_from_design()
+    paths = sorted(src.glob("*_depth.png"))
+    d = np.stack([iio.imread(p) for p in paths]).astype(np.float32)
+    a = np.stack([iio.imread(str(p).replace("_depth", "_amplitude")) for p in paths])
+    depth = torch.from_numpy(np.where(d > 0, d * 1e-3, np.nan).astype(np.float32))[:, None]
+    amp = torch.from_numpy(a.astype(np.float32))[:, None]
+    old = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    best = float("inf")
+    try:
+        with torch.no_grad():
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                for i in range(0, len(paths), CLEAN_BATCH):
+                    module(depth[i : i + CLEAN_BATCH], amp[i : i + CLEAN_BATCH])
+                best = min(best, time.perf_counter() - t0)
+    finally:
+        torch.set_num_threads(old)
+    return {"threads": threads, "ms_per_frame": 1e3 * best / len(paths)}
 
 
 def run_clean(src: Path, dst: Path, workers: int) -> dict:
@@ -159,8 +185,11 @@ def main() -> None:
                     "share": {k: v / total for k, v in res["steps"].items()},
                     "seconds": res["seconds"],
                     "cpu_ms_per_frame": 1e3 * res["cpu_seconds"] / args.frames,
+                    # with workers: the sum of the workers' compute times (CPU-like)
+                    "compute_ms_per_frame": 1e3 * res["steps"]["compute"] / args.frames,
                 }
             )
+        alone = [module_alone(src, n, args.repeats) for n in sorted({1, default_threads})]
     finally:
         shutil.rmtree(work, ignore_errors=True)
     report = {
@@ -171,20 +200,31 @@ def main() -> None:
         "torch_threads": torch.get_num_threads(),
         "load_average": os.getloadavg(),
         "rows": rows,
+        "module_alone": alone,
     }
     Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     print(f"{args.frames} frames 424 x 512, {os.cpu_count()} CPUs, best of {args.repeats}")
     print(f"load average at the end: {load}\n")
-    print("| run | frames/s | vs plain loop | CPU ms / frame | decode | compute | encode |")
-    print("|---|---|---|---|---|---|---|")
+    print(
+        "| run | frames/s | vs plain loop | CPU ms / frame | compute ms / frame | decode | compute "
+        "| encode |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     for row in rows:
         s = row["share"]
         print(
             f"| {row['run']} | {row['frames_per_s']:.1f} | {row['speedup']:.2f}x | "
-            f"{row['cpu_ms_per_frame']:.0f} | "
+            f"{row['cpu_ms_per_frame']:.0f} | {row['compute_ms_per_frame']:.1f} | "
             f"{s['read']:.0%} | {s['compute']:.0%} | {s['write']:.0%} |"
         )
+    for m in alone:
+        print(
+            f"\nthe module alone (in memory, batches of {CLEAN_BATCH}, {m['threads']} thread(s)): "
+            f"{m['ms_per_frame']:.1f} ms / frame",
+            end="",
+        )
+    print()
 
 
 if __name__ == "__main__":
