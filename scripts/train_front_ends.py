@@ -24,6 +24,8 @@ import io
 import json
 import logging
 import math
+import os
+import resource
 import statistics
 import tempfile
 import time
@@ -143,6 +145,15 @@ def export_check(model, size) -> dict:
     return res
 
 
+def _cpu() -> float:
+    """CPU seconds (user + system) of this process and its reaped children: on a shared machine
+    a bound for the wall time on free cores that the load does not move."""
+    return sum(
+        r.ru_utime + r.ru_stime
+        for r in map(resource.getrusage, (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    )
+
+
 def _mean_std(vals) -> list[float]:
     return [statistics.mean(vals), statistics.stdev(vals) if len(vals) > 1 else 0.0]
 
@@ -156,7 +167,7 @@ def run(
     quick: bool = False,
     fronts=FRONT_ENDS,
 ) -> dict:
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _cpu()
     thresholds = fusion_thresholds()
     design = filter_from_design().taps.detach().double().numpy()
     runs = {f: [] for f in fronts}
@@ -215,6 +226,8 @@ def run(
         "summary": summary,
         "runs": runs,
         "seconds": time.perf_counter() - t0,
+        "cpu_seconds": _cpu() - cpu0,
+        "load_average_end": list(os.getloadavg()),
     }
 
 
@@ -291,16 +304,35 @@ def main() -> None:
         help="Adam steps per run (default %(default)s)",
     )
     p.add_argument("--out", type=Path, default=Path("runs/learn"), help="default %(default)s")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch threads of the training process (default %(default)s: with a DataLoader "
+        "worker drawing the frames, that fills 2 cores; more threads on a shared machine can be "
+        "10x slower, as they wait for each other)",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="DataLoader workers drawing the simulated frames (default %(default)s; the samples "
+        "are the same for any number)",
+    )
     args = p.parse_args()
-    if args.seeds < 1 or args.steps < 1:
-        p.error(f"--seeds and --steps must be >= 1, got {args.seeds} and {args.steps}")
-    torch.set_num_threads(2)
+    if args.seeds < 1 or args.steps < 1 or args.threads < 1 or args.workers < 0:
+        p.error(
+            "--seeds, --steps and --threads must be >= 1 and --workers >= 0, got "
+            f"{args.seeds}, {args.steps}, {args.threads} and {args.workers}"
+        )
+    torch.set_num_threads(args.threads)
     logging.getLogger("torch.onnx").setLevel(logging.ERROR)  # "torchvision is not installed"
     if args.quick:
         settings = Settings(12, 4, (32, 32), workers=0, layers=4, channels=8)
         seeds, frames, size = [0], 4, (48, 48)
     else:
-        settings, seeds, frames, size = Settings(args.steps), list(range(args.seeds)), 24, (96, 96)
+        settings = Settings(args.steps, workers=args.workers)
+        seeds, frames, size = list(range(args.seeds)), 24, (96, 96)
     args.out.mkdir(parents=True, exist_ok=True)
     res = run(settings, seeds, frames, size, args.out, quick=args.quick)
     write(res, args.out)
@@ -311,7 +343,9 @@ def main() -> None:
             print(front, "taps:", json.dumps(items[0]["taps"]))
         if "export" in items[0]:
             print(front, "export:", json.dumps(items[0]["export"]))
-    print(f"{res['seconds']:.0f} s; wrote {args.out}/curves.png, report.md, learn.json, model_*.pt")
+    load = ", ".join(f"{x:.1f}" for x in res["load_average_end"])
+    print(f"{res['seconds']:.0f} s wall, {res['cpu_seconds']:.0f} s CPU, load average {load}")
+    print(f"wrote {args.out}/curves.png, report.md, learn.json, model_*.pt")
 
 
 if __name__ == "__main__":

@@ -348,6 +348,23 @@ def test_cli_export_model_refusals(tmp_path, capsys):
     assert not (tmp_path / "fpn_suppression.pt").exists()
 
 
+def test_onnx_refuses_a_model_with_nlm_naming_it_and_writes_nothing(tmp_path, capsys):
+    model = make_model("fixed+nlm", THRESHOLDS, Settings(layers=3, channels=4))
+    with pytest.raises(ValueError, match="cannot export NonLocalMeans to ONNX.*TorchScript"):
+        export_onnx(model, tmp_path / "m.onnx")
+    ckpt = save_model(
+        tmp_path / "model.pt", model, "fixed+nlm", Settings(layers=3, channels=4), THRESHOLDS
+    )
+    out = tmp_path / "m.onnx"
+    rc = cli_main(["export", "--model", str(ckpt), "--format", "onnx", "--out", str(out)])
+    assert rc != 0 and "NonLocalMeans" in capsys.readouterr().err
+    assert not out.exists()
+    rc = cli_main(
+        ["export", "--model", str(ckpt), "--format", "torchscript", "--out", str(tmp_path / "m.pt")]
+    )
+    assert rc == 0 and (tmp_path / "m.pt").is_file()  # TorchScript takes it
+
+
 # ------------------------------------------------ compile, autocast, CUDA
 
 
@@ -450,3 +467,13 @@ def test_quick_example_runs_end_to_end(tmp_path):
         assert f"{summary['model'][0]:.2f}" in rows[front]
     for front in FRONT_ENDS:
         assert (out / f"model_{front.replace('+', '_')}.pt").is_file()
+    # the README's learn command, as written, on this output (--quick added, paths moved here)
+    text = (ROOT / "README.md").read_text()
+    block = text.split("<!-- learn-command -->", 1)[1].split("```bash\n", 1)[1].split("\n```")[0]
+    train_cmd, export_cmd = (c.split() for c in block.split(" && "))
+    assert train_cmd[:2] == ["python", "scripts/train_front_ends.py"] and "--out" in train_cmd
+    assert export_cmd[:2] == ["tof-fpn", "export"]
+    readme_out = train_cmd[train_cmd.index("--out") + 1]
+    args = [str(out) + a[len(readme_out) :] if a.startswith(readme_out) else a for a in export_cmd]
+    args[args.index("--out") + 1] = str(tmp_path / "model.pt")
+    assert cli_main(args[1:]) == 0 and (tmp_path / "model.pt").is_file()

@@ -113,6 +113,10 @@ def export_onnx(
             "a fixed pattern (tof_fpn_torch.analysis.calibrate_fixed_pattern) and export its "
             "FixedPatternCorrection, which ONNX takes"
         )
+    for m in module.modules():  # a module that cannot be traced says so (``onnx_unsupported``)
+        reason = getattr(type(m), "onnx_unsupported", None)
+        if reason:
+            raise ValueError(f"cannot export {type(m).__name__} to ONNX: {reason}")
 
     model = freeze(copy.deepcopy(module)).eval()
     if isinstance(model, FPNFilter):

@@ -315,6 +315,12 @@ class NonLocalMeans(nn.Module):
         torch.Size([2, 1, 16, 16])
     """
 
+    #: read by :func:`tof_fpn_torch.export.export_onnx`, which refuses the module with this reason
+    onnx_unsupported = (
+        "non-local means takes data-dependent branches (the shortcut for frames without holes, "
+        "the batch chunking), which torch.export cannot trace: export it with TorchScript"
+    )
+
     def __init__(
         self,
         patch_size: int = 7,

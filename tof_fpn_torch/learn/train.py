@@ -3,14 +3,19 @@ r"""Train a compact depth denoiser behind four front ends on simulated frames, a
 Front ends (:data:`FRONT_ENDS`):
 
 * ``none``: the network alone;
-* ``fixed``: the FPN stage as designed (``suppression_from_design``: unit-DC notch, fusion, gate);
+* ``fixed``: the FPN stage as designed (``suppression_from_design``: unit-DC notch and fusion,
+  the stripe gate off: see below);
 * ``trainable``: the same stage trained jointly with the network, its notch zeros held
   (``trainable_suppression``);
 * ``fixed+nlm``: the fixed stage, then amplitude-aware NLM (``sigma = k / A``), then the network.
 
 The fusion thresholds of the stage are measured once on a calibration batch of the simulator's own
 frames (:func:`~tof_fpn_torch.build.fusion_from_data`): the simulator's amplitudes are DN, not
-CamCube units. Everything is seeded; see ``scripts/train_front_ends.py`` for the experiment.
+CamCube units. The stripe gate (which leaves a frame without detected periodic stripes unchanged)
+is off in the learned front ends, so that the network sees one kind of input whatever the frame
+(with the gate on it sees filtered and raw frames mixed; measured: no significant difference at
+the default budget, ``docs/learn.md``).
+Everything is seeded; see ``scripts/train_front_ends.py`` for the experiment.
 """
 
 from __future__ import annotations
@@ -47,13 +52,13 @@ class Settings:
     ``batch`` frames of ``size``, drawn by ``workers`` DataLoader workers; the network is
     ``DnCNN(layers, channels)``."""
 
-    steps: int = 240
+    steps: int = 720
     batch: int = 8
     size: tuple[int, int] = (48, 48)
     lr: float = 1e-3
     workers: int = 0
     layers: int = 6
-    channels: int = 24
+    channels: int = 16
 
 
 class _StageThenDenoiser(nn.Module):
