@@ -11,18 +11,34 @@ level (:mod:`tof_fpn_torch.denoise._common`), and returns invalid pixels unchang
   per-pixel noise from the amplitude (eq. 2 of Georgiev et al. 2015) and invalid-pixel handling.
 - :class:`BM3D` / :func:`bm3d`: block matching and 3-D filtering (Dabov et al. 2007), scalar
   sigma, noise map or noise power spectrum.
+- :class:`Bilateral`, :class:`JointBilateral` (amplitude guide), :class:`Guided`: kornia's
+  filters with masked invalid pixels and a range parameter that follows the noise.
+- :func:`get`, :func:`names`: the registry (by name, for the CLI and ``tof-fpn clean``).
 - :func:`estimate_sigma`, :func:`estimate_noise_k`: robust noise-level estimators.
 """
 
 from ._sigma import estimate_noise_k, estimate_sigma
+from .bilateral import Bilateral, JointBilateral, bilateral, joint_bilateral
 from .bm3d import BM3D, bm3d
+from .guided import Guided, guided
 from .nlm import NonLocalMeans, non_local_means
+from .registry import describe, get, names, scriptable
 
 __all__ = [
     "BM3D",
+    "Bilateral",
+    "Guided",
+    "JointBilateral",
     "NonLocalMeans",
+    "bilateral",
     "bm3d",
+    "describe",
     "estimate_noise_k",
     "estimate_sigma",
+    "get",
+    "guided",
+    "joint_bilateral",
+    "names",
     "non_local_means",
+    "scriptable",
 ]

@@ -32,7 +32,14 @@ from ..runtime.validity import valid_mask
 from ._sigma import _estimate_noise_k, _estimate_sigma
 from .nlm import _amplitude_floor, _check_sigma_tensor
 
-__all__ = ["check_amplitude", "fill_invalid", "noise_map", "prepare", "restore_invalid"]
+__all__ = [
+    "check_amplitude",
+    "check_window",
+    "fill_invalid",
+    "noise_map",
+    "prepare",
+    "restore_invalid",
+]
 
 
 def check_amplitude(amplitude: torch.Tensor, depth: torch.Tensor) -> None:
@@ -125,6 +132,15 @@ def fill_invalid(x: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
         up = F.interpolate(est, size=[lx.shape[-2], lx.shape[-1]], mode="nearest")
         est = torch.where(lm > 0, lx / lm.clamp_min(1e-30), up)
     return torch.where(valid, x, est)
+
+
+def check_window(H: int, W: int, kernel_size: int, name: str) -> None:
+    """kornia pads by reflection: the half window must be smaller than the image."""
+    if kernel_size // 2 >= H or kernel_size // 2 >= W:
+        raise ValueError(
+            f"{name}: the image ({H} x {W}) must be larger than half the window "
+            f"(kernel_size // 2 = {kernel_size // 2} pixels) in both directions"
+        )
 
 
 def restore_invalid(out: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
