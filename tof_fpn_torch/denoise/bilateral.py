@@ -191,10 +191,11 @@ def bilateral(
         (sigma 0) or without valid pixels unchanged.
 
     Example:
-        >>> d = torch.full((1, 1, 16, 16), 2.0)
+        >>> g = torch.Generator().manual_seed(0)
+        >>> d = 2.0 + 0.01 * torch.randn(1, 1, 16, 16, generator=g)
         >>> d[0, 0, 5, 5] = 0.0  # a hole: it stays 0 and does not pull its neighbours down
-        >>> out = bilateral(d + 0.01 * torch.randn(1, 1, 16, 16, generator=torch.Generator().manual_seed(0)))
-        >>> float(out[0, 0, 5, 5]), bool((out[0, 0, 4:7, 4:7].sum() - out[0, 0, 5, 5]) > 15.5)
+        >>> out = bilateral(d, sigma_color=5.0)  # a range sigma far above the 2 m jump
+        >>> float(out[0, 0, 5, 5]), bool(out[0, 0, 4:7, 4:7].sum() - out[0, 0, 5, 5] > 15.9)
         (0.0, True)
     """
     return _bilateral(
