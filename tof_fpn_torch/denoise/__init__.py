@@ -11,6 +11,7 @@ level (:mod:`tof_fpn_torch.denoise._common`), and returns invalid pixels unchang
   per-pixel noise from the amplitude (eq. 2 of Georgiev et al. 2015) and invalid-pixel handling.
 - :class:`BM3D` / :func:`bm3d`: block matching and 3-D filtering (Dabov et al. 2007), scalar
   sigma, noise map or noise power spectrum.
+- :class:`SlidingDCT` / :func:`sliding_dct`: sliding-window DCT hard thresholding.
 - :class:`Bilateral`, :class:`JointBilateral` (amplitude guide), :class:`Guided`: kornia's
   filters with masked invalid pixels and a range parameter that follows the noise.
 - :func:`get`, :func:`names`: the registry (by name, for the CLI and ``tof-fpn clean``).
@@ -23,11 +24,13 @@ from .bm3d import BM3D, bm3d
 from .guided import Guided, guided
 from .nlm import NonLocalMeans, non_local_means
 from .registry import describe, get, names, scriptable
+from .sliding_dct import SlidingDCT, sliding_dct
 
 __all__ = [
     "BM3D",
     "Bilateral",
     "Guided",
+    "SlidingDCT",
     "JointBilateral",
     "NonLocalMeans",
     "bilateral",
@@ -41,4 +44,5 @@ __all__ = [
     "names",
     "non_local_means",
     "scriptable",
+    "sliding_dct",
 ]

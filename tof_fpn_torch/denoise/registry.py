@@ -30,10 +30,12 @@ def _classes() -> dict[str, Callable[..., nn.Module]]:
     from .bm3d import BM3D
     from .guided import Guided
     from .nlm import NonLocalMeans
+    from .sliding_dct import SlidingDCT
 
     out: dict[str, Callable[..., nn.Module]] = {
         "nlm": NonLocalMeans,
         "bm3d": BM3D,
+        "sdct": SlidingDCT,
         "bilateral": Bilateral,
         "joint-bilateral": JointBilateral,
         "guided": Guided,
