@@ -12,6 +12,9 @@ level (:mod:`tof_fpn_torch.denoise._common`), and returns invalid pixels unchang
 - :class:`BM3D` / :func:`bm3d`: block matching and 3-D filtering (Dabov et al. 2007), scalar
   sigma, noise map or noise power spectrum.
 - :class:`SlidingDCT` / :func:`sliding_dct`: sliding-window DCT hard thresholding.
+- :class:`HypothesisBilateral`: cost-volume bilateral refinement (Yang et al. 2007), amplitude
+  guide.
+- :class:`LPAICI`: directional LPA kernels with the ICI rule (Katkovnik, Foi et al.).
 - :class:`Bilateral`, :class:`JointBilateral` (amplitude guide), :class:`Guided`: kornia's
   filters with masked invalid pixels and a range parameter that follows the noise.
 - :func:`get`, :func:`names`: the registry (by name, for the CLI and ``tof-fpn clean``).
@@ -22,6 +25,8 @@ from ._sigma import estimate_noise_k, estimate_sigma
 from .bilateral import Bilateral, JointBilateral, bilateral, joint_bilateral
 from .bm3d import BM3D, bm3d
 from .guided import Guided, guided
+from .hypbi import HypothesisBilateral, hypothesis_bilateral
+from .lpa_ici import LPAICI, lpa_ici
 from .nlm import NonLocalMeans, non_local_means
 from .registry import describe, get, names, scriptable
 from .sliding_dct import SlidingDCT, sliding_dct
@@ -30,9 +35,11 @@ __all__ = [
     "BM3D",
     "Bilateral",
     "Guided",
-    "SlidingDCT",
+    "HypothesisBilateral",
     "JointBilateral",
+    "LPAICI",
     "NonLocalMeans",
+    "SlidingDCT",
     "bilateral",
     "bm3d",
     "describe",
@@ -40,7 +47,9 @@ __all__ = [
     "estimate_sigma",
     "get",
     "guided",
+    "hypothesis_bilateral",
     "joint_bilateral",
+    "lpa_ici",
     "names",
     "non_local_means",
     "scriptable",

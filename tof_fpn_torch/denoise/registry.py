@@ -29,6 +29,8 @@ def _classes() -> dict[str, Callable[..., nn.Module]]:
     from .bilateral import Bilateral, JointBilateral
     from .bm3d import BM3D
     from .guided import Guided
+    from .hypbi import HypothesisBilateral
+    from .lpa_ici import LPAICI
     from .nlm import NonLocalMeans
     from .sliding_dct import SlidingDCT
 
@@ -36,6 +38,8 @@ def _classes() -> dict[str, Callable[..., nn.Module]]:
         "nlm": NonLocalMeans,
         "bm3d": BM3D,
         "sdct": SlidingDCT,
+        "hypbi": HypothesisBilateral,
+        "lpa-ici": LPAICI,
         "bilateral": Bilateral,
         "joint-bilateral": JointBilateral,
         "guided": Guided,
@@ -59,7 +63,7 @@ _ALIASES: dict[str, str] = {
 }
 
 #: canonical names whose module ``torch.jit.script`` compiles
-_SCRIPTABLE = {"nlm", "bm3d", "sdct", "lpa-ici"}
+_SCRIPTABLE = {"nlm", "bm3d", "sdct", "hypbi", "lpa-ici"}
 
 
 def _canonical(name: str) -> str:
