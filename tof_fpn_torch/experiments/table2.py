@@ -20,7 +20,8 @@ Protocol (Sec. IV-A, IV-C; our choices where the paper gives none, see docs/expe
   frames. LOW / IMP: :func:`~tof_fpn_torch.analysis.metrics.sensing_stats` (IMP: invalid or more
   than 0.5 m from the ground truth).
 * **FPN suppression**: the paper's stage, ``{20, 0.14}`` notch along the rows plus the eq. (11)
-  amplitude fusion (70 / 350), ungated (``suppression_from_design(gate=False, unit_dc=False)``).
+  amplitude fusion (70 / 350), ungated (``suppression_from_design(gate=False)``, unit-DC taps
+  unless ``unit_dc=False``).
 * **Denoisers**: NLM, HypBi, LPA-ICI, BM3D, sDCT from :mod:`tof_fpn_torch.denoise` with their
   default settings and the amplitude (noise ``sigma_D = k / A``, ``k`` estimated per frame; the
   guide of HypBi), the same for the unfiltered and the filtered input.
