@@ -17,7 +17,7 @@ level (:mod:`tof_fpn_torch.denoise._common`), and returns invalid pixels unchang
 - :class:`LPAICI`: directional LPA kernels with the ICI rule (Katkovnik, Foi et al.).
 - :class:`Bilateral`, :class:`JointBilateral` (amplitude guide), :class:`Guided`: kornia's
   filters with masked invalid pixels and a range parameter that follows the noise.
-- :func:`get`, :func:`names`: the registry (by name, for the CLI and ``tof-fpn clean``).
+- :func:`get`, :func:`names`, :func:`module_class`: the registry (by name, for the CLI and ``tof-fpn clean``).
 - :func:`estimate_sigma`, :func:`estimate_noise_k`: robust noise-level estimators.
 """
 
@@ -28,7 +28,7 @@ from .guided import Guided, guided
 from .hypbi import HypothesisBilateral, hypothesis_bilateral
 from .lpa_ici import LPAICI, lpa_ici
 from .nlm import NonLocalMeans, non_local_means
-from .registry import describe, get, names, scriptable
+from .registry import canonical, describe, get, module_class, names, scriptable
 from .sliding_dct import SlidingDCT, sliding_dct
 
 __all__ = [
@@ -42,6 +42,7 @@ __all__ = [
     "SlidingDCT",
     "bilateral",
     "bm3d",
+    "canonical",
     "describe",
     "estimate_noise_k",
     "estimate_sigma",
@@ -50,6 +51,7 @@ __all__ = [
     "hypothesis_bilateral",
     "joint_bilateral",
     "lpa_ici",
+    "module_class",
     "names",
     "non_local_means",
     "scriptable",

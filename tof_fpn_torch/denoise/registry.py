@@ -21,7 +21,7 @@ from collections.abc import Callable
 
 from torch import nn
 
-__all__ = ["describe", "get", "names", "scriptable"]
+__all__ = ["canonical", "describe", "get", "module_class", "names", "scriptable"]
 
 
 def _classes() -> dict[str, Callable[..., nn.Module]]:
@@ -98,6 +98,20 @@ def get(name: str, **kwargs) -> nn.Module:
     if bad:
         raise ValueError(f"denoiser {key!r} has no parameter(s) {bad}; it takes {params}")
     return cls(**kwargs)
+
+
+def canonical(name: str) -> str:
+    """The canonical name of ``name`` or of its alias (``"Sliding_DCT"`` -> ``"sdct"``).
+
+    Raises:
+        ValueError: unknown name (the message lists :func:`names`).
+    """
+    return _canonical(name)
+
+
+def module_class(name: str) -> Callable[..., nn.Module]:
+    """The module class of ``name`` (a factory taking the constructor's keywords)."""
+    return _classes()[_canonical(name)]
 
 
 def describe(name: str) -> str:
