@@ -180,9 +180,13 @@ def speed(threads: int, rounds: int) -> dict:
                 f()
                 times[k].append(time.perf_counter() - t)
             print(f"  speed round {r + 1}/{rounds}", flush=True)
-    ratios = [
-        p / o for p, o in zip(times["bm3d package"], times["tof_fpn_torch bm3d"], strict=True)
-    ]
+    pairs = {
+        "threads": ("bm3d package", "tof_fpn_torch bm3d"),
+        "1_thread": ("bm3d package (1 thread)", "tof_fpn_torch bm3d (1 thread)"),
+    }
+    ratios = {
+        k: [p / o for p, o in zip(times[a], times[b], strict=True)] for k, (a, b) in pairs.items()
+    }
     table = [
         {
             "method": k,
