@@ -115,7 +115,7 @@ def bm3d_quality(threads: int) -> list[dict]:
     return rows
 
 
-def speed(threads: int, rounds: int) -> dict:
+def speed(threads: int, rounds: int, size: tuple[int, int] = (424, 512)) -> dict:
     import bm3d as bm3d_pkg
     import cv2
     import kornia.filters as KF
@@ -125,7 +125,7 @@ def speed(threads: int, rounds: int) -> dict:
     from tof_fpn_torch import denoise
 
     cv2.setNumThreads(threads)
-    _, noisy, amp = tof_frame()
+    _, noisy, amp = tof_frame(*size)
     h, w = noisy.shape[-2:]
     mpx = h * w / 1e6
     sigma = float((5.0 / amp).mean())
@@ -146,7 +146,7 @@ def speed(threads: int, rounds: int) -> dict:
         ),
         "skimage denoise_wavelet": lambda: R.denoise_wavelet(x64, sigma=sigma),
         "OpenCV fastNlMeansDenoising (uint16 mm, 7/21)": lambda: cv2.fastNlMeansDenoising(
-            mm, None, [3 * sigma * 1000], 7, 21, cv2.NORM_L1
+            mm, [3 * sigma * 1000], None, 7, 21, cv2.NORM_L1
         ),
         "OpenCV bilateralFilter (d 9)": lambda: cv2.bilateralFilter(f32, 9, 3 * sigma, 1.5),
         "kornia bilateral_blur (9x9)": lambda: KF.bilateral_blur(noisy, 9, 3 * sigma, (1.5, 1.5)),
@@ -330,21 +330,20 @@ def main(argv=None) -> int:
         "torch": torch.__version__,
         "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
     }
-    if "bm3d-quality" in only:
-        print("bm3d-quality", flush=True)
-        res["bm3d-quality"] = bm3d_quality(args.threads)
-    if "speed" in only:
-        print("speed", flush=True)
-        res["speed"] = speed(args.threads, args.rounds)
-    if "holes" in only:
-        res["holes"] = holes()
-    if "tof" in only:
-        print("tof", flush=True)
-        res["tof"] = tof(args.tof_frames)
-    res["machine"]["load_after"] = os.getloadavg()[0]
-    res["seconds"] = time.perf_counter() - t0
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(res, indent=1))
+    runs = {
+        "bm3d-quality": lambda: bm3d_quality(args.threads),
+        "speed": lambda: speed(args.threads, args.rounds),
+        "holes": holes,
+        "tof": lambda: tof(args.tof_frames),
+    }
+    for name in SECTIONS:
+        if name in only:
+            print(name, flush=True)
+            res[name] = runs[name]()
+            res["machine"]["load_after"] = os.getloadavg()[0]
+            res["seconds"] = time.perf_counter() - t0
+            path.write_text(json.dumps(res, indent=1))  # kept if a later section fails
     print(markdown(res))
     print(f"wrote {path} ({res['seconds']:.0f} s)")
     return 0

@@ -6,23 +6,25 @@ Two stages, as the paper:
    pixels; each is matched against every block within ``search_radius`` (exact squared block
    distance); the group of the blocks within ``tau_ht`` times the noise variance (mean squared
    difference per pixel), at most ``max_blocks[0]`` (rounded down to a power of two), is
-   transformed (2-D DCT of each block, Haar along the group), coefficients below ``lam`` noise
-   standard deviations are set to 0, and the inverse transform is aggregated with weight
-   ``1 / (sigma^2 N_kept)`` and a Kaiser window (``beta``).
-2. **Wiener filtering.** The same on the basic estimate: matching on it (by default on the
-   4 x 4 lowest DCT frequencies of each block, ``features_wiener = 16``), groups of at most
-   ``max_blocks[1]`` within ``tau_wiener``, gain ``|P|^2 / (|P|^2 + mu2 sigma^2)`` from the
-   basic estimate's spectrum ``P`` applied to the noisy group, weight ``1 / (sigma^2 |W|^2)``.
+   transformed (2-D biorthogonal 1.5 wavelet of each block, ``transform_ht="bior1.5"``, or the
+   DCT; Haar along the group), coefficients below ``lam`` noise standard deviations are set to 0,
+   and the inverse transform is aggregated with weight ``1 / (sigma^2 N_kept)`` and a Kaiser
+   window (``beta``).
+2. **Wiener filtering.** The same on the basic estimate: matching on it (all ``n^2`` pixels by
+   default, ``features_wiener = 64``; ``16`` matches on the 4 x 4 lowest DCT frequencies, faster),
+   groups of at most ``max_blocks[1]`` within ``tau_wiener``, gain
+   ``|P|^2 / (|P|^2 + mu2 sigma^2)`` (2-D DCT, Haar) from the basic estimate's spectrum ``P``
+   applied to the noisy group, weight ``1 / (sigma^2 |W|^2)``.
 
-Implementation: :mod:`tof_fpn_torch.denoise.bm3d_core` (one ``conv2d`` computes the DCT of every
-block once; matching is a grouped convolution or a batched matrix product per tile of
-references; aggregation happens in the DCT domain). Differences from the ``bm3d`` package
-(Makinen, Azzari, Foi 2020), measured in docs/denoise.md: the 2-D transform of the first stage is
-the DCT (the package: biorthogonal 1.5), ``lam = 2.7`` and ``mu2 = 1`` (the paper's; the package
-uses 3.0 and 0.4 for white noise), the thresholds ``tau`` are relative to the noise variance (the
-package's are absolute, for images in [0, 1]: 3000 / 255^2 and 400 / 255^2 per pixel, our
-``4.8`` and ``0.64`` at sigma = 25 / 255), and the default search window is 25 x 25 (the package:
-39 x 39; ``search_radius=19`` gives it).
+Implementation: :mod:`tof_fpn_torch.denoise.bm3d_core` (one ``conv2d`` computes the transform of
+every block once; matching is a grouped convolution or a batched matrix product per tile of
+references, :mod:`~tof_fpn_torch.denoise.bm3d_match`; aggregation happens in the transform
+domain). Defaults follow the ``bm3d`` package (Makinen, Azzari, Foi 2020) for white noise:
+biorthogonal 1.5 in the first stage, ``lam = 3.0``; the thresholds ``tau`` are relative to the
+noise variance (the package's are absolute, for images in [0, 1]: 3000 / 255^2 and 400 / 255^2 per
+pixel, our ``4.8`` and ``0.64`` at sigma = 25 / 255). Differences: ``mu2 = 1`` (the paper's; the
+package 0.4) and a 25 x 25 search window (the package: 39 x 39; ``search_radius=19`` gives it).
+Measured against the package: docs/denoise.md.
 
 Noise
 -----
