@@ -116,3 +116,16 @@ def test_cli_reproduce_table2(tmp_path, capsys):
     assert main([*argv, "--seeds", "1", "--out", str(tmp_path / "x")]) == 2
     assert "--seeds does not apply to table2" in capsys.readouterr().err
     assert main(["reproduce", "table1", "--frames", "2", "--out", str(tmp_path / "y")]) == 2
+    assert main([*argv, "--denoisers", "wiener", "--out", str(tmp_path / "z")]) == 2
+    assert "unknown denoiser 'wiener'" in capsys.readouterr().err
+    out2 = tmp_path / "t2b"
+    assert (
+        main([*argv, "--denoisers", "Guided,sliding_dct", "--out", str(out2), "--no-progress"]) == 0
+    )
+    data = json.loads((out2 / "table2.json").read_text())
+    assert data["methods"] == ["guided", "sdct"]
+    assert set(data["rows"][0]["psnr"]) == {"none", "guided", "sdct"}
+    md = (out2 / "table2.md").read_text()
+    assert "| Guided ours | paper | sDCT ours | paper |" in md
+    # no paper value for the guided filter: one "-" per integration time in both tables
+    assert "(24.4, 26.4) |" in md and md.count(" - |") == 2 * len(K.TABLE2_INTEGRATION_TIMES)

@@ -10,6 +10,7 @@ import argparse
 import inspect
 
 from .. import constants as K
+from .. import denoise
 from .. import experiments as E
 from ._common import (
     MAX_SIZE,
@@ -39,7 +40,13 @@ QUICK_TABLE2 = {"size": 96, "frames": 1, "gt_frames": 50}
 _TABLE1 = inspect.signature(E.run_table1).parameters
 _FIG9 = inspect.signature(E.run_fig9).parameters
 #: Options that only one experiment reads (refused for the other).
-_ONLY = {"case": "fig9", "compensate_delay": "table1", "frames": "table2", "gt_frames": "table2"}
+_ONLY = {
+    "case": "fig9",
+    "compensate_delay": "table1",
+    "frames": "table2",
+    "gt_frames": "table2",
+    "denoisers": "table2",
+}
 #: Options of Table I / Fig. 9 that Table II does not read (refused when given).
 _NOT_TABLE2 = ("seeds", "h", "patch_size", "patch_distance", "case", "compensate_delay")
 
@@ -54,6 +61,19 @@ def _seeds(text: str) -> tuple[int, ...]:
             f"must be distinct comma-separated ints >= 0, e.g. 0,1,2, got {text!r}"
         )
     return seeds
+
+
+def _denoisers(text: str) -> tuple[str, ...]:
+    """Comma-separated registry names (aliases allowed) or ``all``."""
+    if text.strip().lower() == "all":
+        return tuple(denoise.names())
+    try:
+        names = tuple(denoise.canonical(s) for s in text.split(",") if s.strip())
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if not names or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"must be distinct denoiser names, got {text!r}")
+    return names
 
 
 def _default(name: str) -> str:
@@ -140,6 +160,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int_arg(1),
         help="table2 only: frames averaged at 2000 us for the ground truth (default "
         f"{E.Table2Setup().gt_frames}, the paper's)",
+    )
+    p.add_argument(
+        "--denoisers",
+        type=_denoisers,
+        metavar="NAMES",
+        help="table2 only: comma-separated denoisers of tof_fpn_torch.denoise, or all "
+        f"(default the paper's: {','.join(E.PAPER_METHODS)}; all: {','.join(denoise.names())})",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
@@ -233,7 +260,8 @@ def _run_table2(args: argparse.Namespace) -> int:
             kw[name] = getattr(args, name)
     setup = E.Table2Setup(**kw).validate()
     set_threads(args.threads)
-    result = E.run_table2(setup, progress=not args.no_progress)
+    methods = args.denoisers or E.PAPER_METHODS
+    result = E.run_table2(setup, methods, progress=not args.no_progress)
     with output_dirs(args.out) as created:
         paths = E.write_table2(result, args.out)
     report_created(created)

@@ -67,6 +67,9 @@ LABELS = {
     "lpa-ici": "LPA-ICI",
     "bm3d": "BM3D",
     "sdct": "sDCT",
+    "bilateral": "Bilateral",
+    "joint-bilateral": "Joint bilateral",
+    "guided": "Guided",
 }
 
 
