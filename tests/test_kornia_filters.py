@@ -156,6 +156,13 @@ def test_degenerate_inputs():
         JointBilateral()(x)
     with pytest.raises(ValueError, match="sigma must be a finite number >= 0"):
         Bilateral()(x, sigma=-1.0)
+    # the joint filter's range kernel is on the amplitude, but sigma keeps the common rules
+    a = torch.full_like(x[:1], 50.0) + torch.arange(12.0)
+    for bad in (-1.0, math.nan):
+        with pytest.raises(ValueError, match="sigma must be a finite number >= 0"):
+            JointBilateral()(x[:1], a, sigma=bad)
+    torch.testing.assert_close(JointBilateral()(x[:1], a, sigma=0.0), x[:1], atol=0, rtol=0)
+    assert not torch.equal(JointBilateral()(x[:1], a, sigma=0.01), x[:1])
     with pytest.raises(ValueError, match="amplitude must have shape"):
         Guided()(x, torch.ones(2, 1, 4, 4))
 

@@ -133,6 +133,9 @@ def _bilateral(
         else:
             rsig = torch.full((B, 1, H, W), sigma_color, dtype=x.dtype, device=x.device)
         live = (rsig.flatten(1).amax(1) > 0) & valid.flatten(1).any(1)
+        if sigma is not None:  # checked as every denoiser's; 0 (no noise) leaves the image
+            sig = noise_map(x, valid, amp, sigma, k, wavelet)
+            live = live & (sig.flatten(1).amax(1) > 0)
     else:
         if sigma_color is None:
             sig = noise_map(x, valid, amp, sigma, k, wavelet)
@@ -227,8 +230,9 @@ def joint_bilateral(
     r"""Joint bilateral filter of depth guided by the amplitude (kornia's, masked).
 
     The range kernel compares amplitudes: ``sigma_color`` in amplitude units, default ``color``
-    times the amplitude's noise (wavelet MAD estimate per image). ``sigma`` (depth noise) is not
-    used; it is accepted for the common ``forward(depth, amplitude, sigma)`` signature.
+    times the amplitude's noise (wavelet MAD estimate per image). ``sigma`` (depth noise) does not
+    set the range kernel; a given ``sigma`` is checked as every denoiser's (finite, ``>= 0``) and
+    ``sigma = 0`` (no noise) returns that image unchanged, as every denoiser.
     """
     return _bilateral(
         depth,
