@@ -1,7 +1,7 @@
 """Table II of Georgiev, Bregovic, Gotchev (SAS 2015): denoising of low-sensing data without and
 with FPN suppression, on the raw-level simulator (the paper's data are real CamCube 2.0 captures).
 
-Protocol (Sec. IV-A, IV-C; our choices where the paper gives none, see docs/experiments.md):
+Protocol (Sec. IV-A, IV-C; our choices where the paper gives none; results in docs/denoise.md):
 
 * **Scene**: :func:`~tof_fpn_torch.sim.planar_scene` -- fronto-parallel boards of different
   materials and textures at several depths in front of a wall -- with the illumination falling
