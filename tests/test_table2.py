@@ -97,6 +97,27 @@ def test_each_denoiser_improves_and_gains_from_fpn_suppression_at_50us(tiny):
     assert "NO" not in table2_markdown(tiny).split("## Checks")[1]
 
 
+def test_noise_from_the_unfiltered_frame():
+    """``noise="input"``: k from the unfiltered frame for both columns; the unfiltered column is
+    what a denoiser built with that k gives, and the Markdown says which rule was used."""
+    setup = E.Table2Setup(size=48, frames=2, gt_frames=4)
+    r = E.run_table2(setup, methods=("lpa-ici", "joint-bilateral"), noise="input")
+    own = E.run_table2(setup, methods=("lpa-ici", "joint-bilateral"))
+    assert r["noise"] == "input" and "on the unfiltered frame" in table2_markdown(r)
+    assert "by each denoiser on its input" in table2_markdown(own)
+    for a, b in zip(r["rows"], own["rows"], strict=True):
+        assert a["psnr"]["none"] == b["psnr"]["none"]
+        assert a["psnr"]["joint-bilateral"] == b["psnr"]["joint-bilateral"]  # takes no k
+        # the same k on the unfiltered frames (estimated there either way): same numbers
+        assert a["psnr"]["lpa-ici"][0] == pytest.approx(b["psnr"]["lpa-ici"][0], abs=1e-4)
+    assert any(
+        abs(a["psnr"]["lpa-ici"][1] - b["psnr"]["lpa-ici"][1]) > 1e-3
+        for a, b in zip(r["rows"], own["rows"], strict=True)
+    )
+    with pytest.raises(ValueError, match="noise must be"):
+        E.run_table2(setup, noise="filtered")
+
+
 def test_bad_settings_and_names():
     with pytest.raises(ValueError, match="size"):
         E.Table2Setup(size=8).validate()

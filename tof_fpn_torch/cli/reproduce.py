@@ -46,6 +46,7 @@ _ONLY = {
     "frames": "table2",
     "gt_frames": "table2",
     "denoisers": "table2",
+    "noise": "table2",
 }
 #: Options of Table I / Fig. 9 that Table II does not read (refused when given).
 _NOT_TABLE2 = ("seeds", "h", "patch_size", "patch_distance", "case", "compensate_delay")
@@ -168,6 +169,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="table2 only: comma-separated denoisers of tof_fpn_torch.denoise, or all "
         f"(default the paper's: {','.join(E.PAPER_METHODS)}; all: {','.join(denoise.names())})",
     )
+    p.add_argument(
+        "--noise",
+        choices=("own", "input"),
+        help="table2 only: k of sigma_D = k / A estimated by each denoiser on its own input "
+        "(own, default) or on the unfiltered frame for both columns (input)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
         "--threads",
@@ -261,7 +268,7 @@ def _run_table2(args: argparse.Namespace) -> int:
     setup = E.Table2Setup(**kw).validate()
     set_threads(args.threads)
     methods = args.denoisers or E.PAPER_METHODS
-    result = E.run_table2(setup, methods, progress=not args.no_progress)
+    result = E.run_table2(setup, methods, noise=args.noise or "own", progress=not args.no_progress)
     with output_dirs(args.out) as created:
         paths = E.write_table2(result, args.out)
     report_created(created)
