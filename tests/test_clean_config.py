@@ -153,6 +153,6 @@ def test_denoiser_registry_takes_new_names():
     finally:
         DENOISERS.pop("halve")
     with pytest.raises(ValueError, match="denoise must be 'none' or one of"):
-        build_pipeline(CleanConfig(denoise="bm3d"))
+        build_pipeline(CleanConfig(denoise="wiener"))
     with pytest.raises(ValueError, match="identifier"):
         register_denoiser("none", Halve)

@@ -203,6 +203,8 @@ def _paper_numbers() -> tuple[dict[float, str], dict[float, str]]:
     for case in K.PAPER_TABLE1.values():
         for row in case.values():
             distinctive.update({v: "PAPER_TABLE1" for v in row})
+    for rows in K.PAPER_TABLE2.values():
+        distinctive.update({v: "PAPER_TABLE2" for pair in rows for v in pair if v != int(v)})
     defaults = {
         float(getattr(K, name)): name
         for name in (

@@ -347,8 +347,9 @@ def test_bad_inputs():
         nlm(torch.ones(8, 8))
     with pytest.raises(ValueError, match="floating-point"):
         nlm(torch.ones(1, 1, 8, 8, dtype=torch.int32))
-    with pytest.raises(ValueError, match="either sigma"):
-        nlm(x, torch.ones(1, 1, 8, 8), 0.1)
+    # sigma and amplitude together: sigma sets the noise, the amplitude only its validity rule
+    xr = 1.0 + 0.1 * torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+    torch.testing.assert_close(nlm(xr, torch.ones(1, 1, 8, 8), 0.1), nlm(xr, sigma=0.1))
     with pytest.raises(ValueError, match="amplitude must have shape"):
         nlm(x, torch.ones(1, 1, 8, 9))
     with pytest.raises(ValueError, match="amplitude must have 1 channel"):

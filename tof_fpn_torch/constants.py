@@ -179,3 +179,21 @@ CLEAN_BATCH: int = 8
 #: Frames (the first in file order) on which ``auto`` / ``data`` stages of ``tof-fpn clean`` are
 #: measured when the run starts.
 CLEAN_CALIBRATION_FRAMES: int = 8
+
+# --- Table II (real-case data) and its protocol (Sec. IV-A, IV-C; issue 11) --------------------
+#: Integration times of Table II's low-sensing captures, s.
+TABLE2_INTEGRATION_TIMES: tuple[float, ...] = (50e-6, 100e-6, 200e-6)
+#: Ground truth: the mean of this many frames at the normal-mode integration time below.
+TABLE2_GT_FRAMES: int = 200
+TABLE2_GT_INTEGRATION_TIME: float = 2000e-6
+#: Table II's {LOW, IMP} in percent per integration time (same order as the times).
+PAPER_TABLE2_SENSING: tuple[tuple[float, float], ...] = ((100.0, 11.0), (94.0, 5.0), (83.0, 2.0))
+#: Table II: method -> (not filtered, filtered) PSNR in dB per integration time (same order).
+PAPER_TABLE2: dict[str, tuple[tuple[float, float], ...]] = {
+    "none": ((19.3, 21.3), (22.3, 24.3), (26.3, 27.6)),
+    "nlm": ((22.1, 26.7), (27.3, 30.4), (32.8, 35.0)),
+    "hypbi": ((20.8, 25.0), (23.6, 28.4), (28.7, 32.4)),
+    "lpa-ici": ((24.6, 28.8), (28.9, 31.8), (33.8, 35.1)),
+    "bm3d": ((24.3, 28.4), (28.8, 31.4), (32.9, 35.4)),
+    "sdct": ((24.4, 26.4), (26.2, 27.9), (27.8, 28.1)),
+}

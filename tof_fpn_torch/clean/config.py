@@ -11,7 +11,7 @@ the defaults shown)::
     notch = "design"      # periodic stripes (FPNSuppression): off | design | data
     fusion = "camera"     # eq. (11) amplitude fusion: off | camera | data | manual
                           #   (default: camera with a notch stage, off without one)
-    denoise = "none"      # a denoiser of tof_fpn_torch.clean.DENOISERS (nlm) or none
+    denoise = "none"      # none or a denoiser of tof_fpn_torch.clean.DENOISERS (nlm, bm3d, ...)
 
     [notch]
     order = 20            # filter order

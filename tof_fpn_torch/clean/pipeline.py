@@ -2,8 +2,10 @@
 
 Order (each stage optional): the FPN stage (:class:`~tof_fpn_torch.runtime.FPNSuppression`: notch
 filter, eq. (11) fusion, stripe gate, then the broadband destriper), then a denoiser. Denoisers are
-a small registry by name (:data:`DENOISERS`; ``nlm`` today): :func:`register_denoiser` adds one, a
-factory taking keyword options and returning a module ``(depth, amplitude) -> depth``.
+a registry by name (:data:`DENOISERS`: every name of :func:`tof_fpn_torch.denoise.names` -- nlm,
+bm3d, sdct, hypbi, lpa-ici, bilateral, joint-bilateral, guided -- and the registry's aliases):
+:func:`register_denoiser` adds one, a factory taking keyword options and returning a module
+``(depth, amplitude) -> depth``.
 
 Data-driven choices (``destripe = "auto"``, ``notch = "data"``, ``fusion = "data"``) are measured
 on calibration frames (the first frames of the input in file order, read by the caller) with the
@@ -19,20 +21,22 @@ import torch
 from torch import nn
 
 from .. import constants as K
+from .. import denoise as _denoise
 from ..build import (
     broadband_from_data,
     fusion_from_data,
     suppression_from_data,
     suppression_from_design,
 )
-from ..denoise import NonLocalMeans
 from ..runtime import Destripe, FPNSuppression
 from .config import CleanConfig
 
 __all__ = ["DENOISERS", "CleanPipeline", "build_pipeline", "describe", "register_denoiser"]
 
 #: denoiser name -> factory(**options) -> module ``(depth, amplitude) -> depth``
-DENOISERS: dict[str, Callable[..., nn.Module]] = {"nlm": NonLocalMeans}
+DENOISERS: dict[str, Callable[..., nn.Module]] = {
+    n: _denoise.module_class(n) for n in _denoise.names()
+}
 
 _DESTRIPE_DIMS = {"columns": -1, "rows": -2, "both": (-2, -1)}
 
@@ -56,6 +60,11 @@ def make_denoiser(name: str, options: dict) -> nn.Module | None:
         if options:
             raise ValueError(f"denoise options {sorted(options)} given, but denoise = 'none'")
         return None
+    if name not in DENOISERS:  # an alias of the denoise registry (sliding_dct, LPAICI, ...)
+        try:
+            name = _denoise.canonical(name)
+        except ValueError:
+            pass
     if name not in DENOISERS:
         raise ValueError(f"denoise must be 'none' or one of {sorted(DENOISERS)}, got {name!r}")
     factory = DENOISERS[name]

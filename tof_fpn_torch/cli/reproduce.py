@@ -1,4 +1,5 @@
-"""``tof-fpn reproduce table1|fig9``: the paper's synthetic experiment (Table I, Fig. 9).
+"""``tof-fpn reproduce table1|fig9|table2``: the paper's synthetic experiment (Table I, Fig. 9) and
+its denoiser comparison on simulated low-sensing captures (Table II, Fig. 10).
 
 Thin wrapper over :mod:`tof_fpn_torch.experiments`; see docs/experiments.md.
 """
@@ -9,6 +10,7 @@ import argparse
 import inspect
 
 from .. import constants as K
+from .. import denoise
 from .. import experiments as E
 from ._common import (
     MAX_SIZE,
@@ -31,11 +33,23 @@ QUICK_SEEDS = (0,)
 #: ``--out`` when not given.
 DEFAULT_OUT = "reproduce_out"
 
+#: ``table2 --quick``: a small capture (side, test frames per integration time, ground-truth frames).
+QUICK_TABLE2 = {"size": 96, "frames": 1, "gt_frames": 50}
+
 #: The defaults of the experiments (what runs without ``--seeds`` / ``--size`` / ``--case``).
 _TABLE1 = inspect.signature(E.run_table1).parameters
 _FIG9 = inspect.signature(E.run_fig9).parameters
 #: Options that only one experiment reads (refused for the other).
-_ONLY = {"case": "fig9", "compensate_delay": "table1"}
+_ONLY = {
+    "case": "fig9",
+    "compensate_delay": "table1",
+    "frames": "table2",
+    "gt_frames": "table2",
+    "denoisers": "table2",
+    "noise": "table2",
+}
+#: Options of Table I / Fig. 9 that Table II does not read (refused when given).
+_NOT_TABLE2 = ("seeds", "h", "patch_size", "patch_distance", "case", "compensate_delay")
 
 
 def _seeds(text: str) -> tuple[int, ...]:
@@ -50,6 +64,19 @@ def _seeds(text: str) -> tuple[int, ...]:
     return seeds
 
 
+def _denoisers(text: str) -> tuple[str, ...]:
+    """Comma-separated registry names (aliases allowed) or ``all``."""
+    if text.strip().lower() == "all":
+        return tuple(denoise.names())
+    try:
+        names = tuple(denoise.canonical(s) for s in text.split(",") if s.strip())
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if not names or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"must be distinct denoiser names, got {text!r}")
+    return names
+
+
 def _default(name: str) -> str:
     """The default of ``name`` in both experiments, as help text."""
     a, b = _TABLE1[name].default, _FIG9[name].default
@@ -60,13 +87,16 @@ def _default(name: str) -> str:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reproduce",
-        help="reproduce the paper's synthetic experiment (Table I, Fig. 9)",
+        help="reproduce the paper's experiments (Table I, Fig. 9; Table II on the simulator)",
         description="Synthetic scene -> eq. (10) FPN (+ eq. (2) noise at "
         f"{K.PAPER_INPUT_PSNR['fpn+noise']:g} dB) -> FPN notch "
         "filter (+ eq. (11) fusion) -> NLM -> PSNR; writes CSV, JSON, Markdown (ours beside the "
-        "paper) and PNG into --out.",
+        "paper) and PNG into --out. table2: the raw-level simulator's low-sensing captures (50, "
+        "100, 200 us) with and without FPN suppression, each denoiser's PSNR beside Table II.",
     )
-    p.add_argument("experiment", choices=("table1", "fig9"), help="which result to reproduce")
+    p.add_argument(
+        "experiment", choices=("table1", "fig9", "table2"), help="which result to reproduce"
+    )
     quick_seeds = ",".join(map(str, QUICK_SEEDS))
     p.add_argument(
         "--quick",
@@ -74,7 +104,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"seed(s) {quick_seeds} at {QUICK_SIZE}x{QUICK_SIZE} (fig9: odd orders "
         f"{', '.join(map(str, E.QUICK_ODD_ORDERS))}, even orders "
         f"{', '.join(map(str, E.QUICK_EVEN_ORDERS))}, rho "
-        f"{', '.join(f'{r:g}' for r in E.QUICK_RHOS)}); seconds",
+        f"{', '.join(f'{r:g}' for r in E.QUICK_RHOS)}); table2: {QUICK_TABLE2['size']}x"
+        f"{QUICK_TABLE2['size']}, {QUICK_TABLE2['frames']} frame, ground truth of "
+        f"{QUICK_TABLE2['gt_frames']} frames; seconds",
     )
     p.add_argument(
         "--out", default=DEFAULT_OUT, metavar="DIR", help="output directory (default %(default)s)"
@@ -119,6 +151,30 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="table1 only: compensate the half-sample delay of odd orders",
     )
+    p.add_argument(
+        "--frames",
+        type=int_arg(1),
+        help=f"table2 only: test frames per integration time (default {E.Table2Setup().frames})",
+    )
+    p.add_argument(
+        "--gt-frames",
+        type=int_arg(1),
+        help="table2 only: frames averaged at 2000 us for the ground truth (default "
+        f"{E.Table2Setup().gt_frames}, the paper's)",
+    )
+    p.add_argument(
+        "--denoisers",
+        type=_denoisers,
+        metavar="NAMES",
+        help="table2 only: comma-separated denoisers of tof_fpn_torch.denoise, or all "
+        f"(default the paper's: {','.join(E.PAPER_METHODS)}; all: {','.join(denoise.names())})",
+    )
+    p.add_argument(
+        "--noise",
+        choices=("own", "input"),
+        help="table2 only: k of sigma_D = k / A estimated by each denoiser on its own input "
+        "(own, default) or on the unfiltered frame for both columns (input)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
         "--threads",
@@ -137,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
                 f"--{name.replace('_', '-')} applies to {experiment} only, not {args.experiment}"
             )
     check_output_dir("--out", args.out)
+    if args.experiment == "table2":
+        return _run_table2(args)
     kw = {}
     if args.seeds is not None or args.quick:
         kw["seeds"] = args.seeds if args.seeds is not None else QUICK_SEEDS
@@ -191,6 +249,35 @@ def run(args: argparse.Namespace) -> int:
         )
         for name, b in result["best"].items():
             print(f"  best {name:18s}: {{{b['order']}, {b['rho']:g}}} {b['psnr']:.2f} dB")
+    written = ", ".join(join(args.out, p.name) for p in paths.values())
+    print(f"wrote {written} ({result['seconds']:.1f} s)")
+    return 0
+
+
+def _run_table2(args: argparse.Namespace) -> int:
+    nlm = E.NLMSettings()
+    defaults = {"h": nlm.h, "patch_size": nlm.patch_size, "patch_distance": nlm.patch_distance}
+    for name in _NOT_TABLE2:
+        value = getattr(args, name)
+        if value not in (None, False) and value != defaults.get(name, None):
+            raise UsageError(f"--{name.replace('_', '-')} does not apply to table2")
+    kw = dict(QUICK_TABLE2) if args.quick else {}
+    for name in ("size", "frames", "gt_frames"):
+        if getattr(args, name) is not None:
+            kw[name] = getattr(args, name)
+    setup = E.Table2Setup(**kw).validate()
+    set_threads(args.threads)
+    methods = args.denoisers or E.PAPER_METHODS
+    result = E.run_table2(setup, methods, noise=args.noise or "own", progress=not args.no_progress)
+    with output_dirs(args.out) as created:
+        paths = E.write_table2(result, args.out)
+    report_created(created)
+    for r in result["rows"]:
+        cells = ", ".join(f"{m} {v[0]:.1f}->{v[1]:.1f}" for m, v in r["psnr"].items())
+        print(
+            f"{r['integration_time_us']:4d} us: LOW {r['low']:.0f} %, IMP {r['imp']:.0f} %; "
+            f"PSNR dB (not filtered->filtered): {cells}"
+        )
     written = ", ".join(join(args.out, p.name) for p in paths.values())
     print(f"wrote {written} ({result['seconds']:.1f} s)")
     return 0

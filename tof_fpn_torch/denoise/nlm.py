@@ -134,9 +134,10 @@ def non_local_means(
         depth: (B, C, H, W) floating depth. ``C > 1`` is a vector-valued image: one set of
             weights from the distance averaged over channels, applied to every channel
             (scikit-image's ``channel_axis`` behaviour); a pixel is invalid if any channel is.
-        amplitude: optional (B, 1, H, W) amplitude ``A``; sets the noise map
-            ``sigma = k / A`` (eq. 2 of Georgiev et al. 2015). Pixels with ``A <= 0`` or
-            non-finite ``A`` are invalid. Exclusive with ``sigma``.
+        amplitude: optional (B, 1, H, W) amplitude ``A``; without ``sigma`` it sets the noise
+            map ``sigma = k / A`` (eq. 2 of Georgiev et al. 2015); with ``sigma`` (which then
+            sets the noise, as for every denoiser of the package) only its validity rule is
+            used. Pixels with ``A < 0`` or non-finite ``A`` are invalid.
         sigma: noise standard deviation in depth units: a float, a 0-d or (B,) tensor (one per
             image), a (B, 1, H, W) map, or None to estimate it per image (wavelet MAD, see
             :func:`tof_fpn_torch.denoise.estimate_sigma`; mean over channels).
@@ -198,10 +199,6 @@ def _non_local_means(
     B, C, H, W = depth.shape
     if H < 1 or W < 1:
         raise ValueError(f"depth must have H, W >= 1, got shape {list(depth.shape)}")
-    if amplitude is not None and sigma is not None:
-        raise ValueError(
-            "give either sigma (noise level) or amplitude (noise level k / A), not both"
-        )
     work_dtype = torch.float64 if depth.dtype == torch.float64 else torch.float32
     x = depth.detach().to(work_dtype)
     valid = valid_mask(x, signed=signed).all(dim=1, keepdim=True)
@@ -226,7 +223,7 @@ def _non_local_means(
 
     half_var: torch.Tensor | None = None
     sig_img = torch.zeros(B, 1, 1, 1, dtype=work_dtype, device=x.device)
-    if amplitude is not None:
+    if amplitude is not None and sigma is None:
         if k is None:
             kk = _estimate_noise_k(x, amp, valid_c, wkernel).mean(dim=1)
         else:
