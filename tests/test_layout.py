@@ -44,6 +44,17 @@ ALLOWED: dict[str, set[str]] = {
     # the file layer: beside the simulator (never imports it), reads the validity rule and the
     # camera profile names
     "io": {"runtime", "cameras"},
+    # sim vs. recording (issue 10): reads recordings / scenes, runs the simulator, fits it
+    "diagnosis": {
+        "runtime",
+        "analysis",
+        "sim",
+        "io",
+        "denoise",
+        "design",
+        "cameras",
+        "plotting",
+    },
     "cli": {
         "runtime",
         "design",
@@ -55,6 +66,8 @@ ALLOWED: dict[str, set[str]] = {
         "export",
         "plotting",
         "cameras",
+        "io",
+        "diagnosis",
     },
 }
 #: third-party packages a layer may import (beyond the standard library)
@@ -67,6 +80,7 @@ THIRD_PARTY: dict[str, set[str]] = {
     "plotting": {"matplotlib"},
     "cameras": set(),
     "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av"},
+    "diagnosis": {"torch", "numpy"},
 }
 
 
