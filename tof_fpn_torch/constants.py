@@ -193,3 +193,10 @@ DIAG_FIT_ROUNDS: int = 4
 #: Pixels whose temporal mean or spread is within this many sigma of a grossly misfitting model
 #: give the robust starting values that every candidate term is also tried from.
 DIAG_INLIER_Z: float = 4.0
+#: Resolution of the diagnosis figures.
+DIAG_FIGURE_DPI: int = 110
+#: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
+#: out of the likelihood (the smoothing cannot follow the edge there).
+DIAG_EDGE_MARGIN: int = 2
+#: Starting rms of the per-pixel amplitude texture of the estimated-scene baseline.
+DIAG_TEXTURE_RMS: float = 0.02

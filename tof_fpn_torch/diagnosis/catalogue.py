@@ -36,7 +36,15 @@ from ..sim import (
 )
 from .params import ParamSpec
 
-__all__ = ["CATALOGUE", "VOCABULARY", "Effect", "build_term", "harmonics", "implemented"]
+__all__ = [
+    "CATALOGUE",
+    "REVEALED_WITHOUT_SCENE",
+    "VOCABULARY",
+    "Effect",
+    "build_term",
+    "harmonics",
+    "implemented",
+]
 
 #: every name the report may use (``none`` when nothing is significant)
 VOCABULARY: tuple[str, ...] = (
@@ -197,6 +205,18 @@ CATALOGUE: dict[str, Effect] = {
         ),
     )
 }
+
+
+#: What a recording can reveal when its scene is estimated from the recording itself: structure
+#: finer than the smoothing and changes over time. The amplitude of every pixel then carries its
+#: own reflectance, so the baseline gets ``pixel_gain`` as a per-pixel amplitude texture (PRNU and
+#: reflectance texture cannot be told apart without a scene).
+REVEALED_WITHOUT_SCENE: tuple[str, ...] = (
+    "fpn_pattern",
+    "noise_floor",
+    "impulsive_pixels",
+    "temporal_drift",
+)
 
 
 def implemented() -> list[str]:

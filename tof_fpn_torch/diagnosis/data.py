@@ -83,7 +83,7 @@ class Observations:
             n_phases=self.n_phases,
             integration_time=self.integration_time,
             adc_bits=32,
-            full_well=1e12,
+            full_well=1e30,
         )
 
 

@@ -64,6 +64,10 @@ class Context:
 def make_context(obs: Observations, snr: torch.Tensor) -> Context:
     """Masks from the predicted SNR (``A_0 / s``), the checkerboard split, outlier ranges."""
     base = obs.known & (obs.n > 0)
+    if obs.scene_estimated:  # the estimate is poor within a few px of a depth edge
+        from .axes import edge_distance
+
+        base &= edge_distance(obs.scene_depth, obs.known) > K.DIAG_EDGE_MARGIN
     mask_d = base & (snr >= K.DIAG_MIN_SNR_DEPTH)
     mask_a = base & (snr >= K.DIAG_MIN_SNR_AMPLITUDE)
     h, w = obs.shape

@@ -44,6 +44,7 @@ class Stat:
     n: torch.Tensor | None = None
     phys: torch.Tensor | None = None
     axis: Axis | None = None
+    se2: torch.Tensor | None = None
     kind: str = "chi2"
     null: list = field(default_factory=list)
     p: float = 1.0
@@ -100,8 +101,12 @@ def _binned(z, phys, lab: torch.Tensor, nb: int):
     n = torch.zeros(nb, dtype=torch.float64).index_add_(0, idx, torch.ones_like(z[m]))
     sz = torch.zeros(nb, dtype=torch.float64).index_add_(0, idx, z[m])
     sp = torch.zeros(nb, dtype=torch.float64).index_add_(0, idx, phys[m])
+    # squared standard error of each pixel's physical residual (phys / z), for the null band
+    se = torch.where(z[m].abs() > 1e-12, phys[m] / z[m], torch.zeros_like(z[m])) ** 2
+    s2 = torch.zeros(nb, dtype=torch.float64).index_add_(0, idx, se)
     zbar = sz / n.clamp_min(1)
-    return zbar, n, sp / n.clamp_min(1), float((n * zbar * zbar).sum()), int((n > 0).sum())
+    nn_ = n.clamp_min(1)
+    return zbar, n, sp / nn_, float((n * zbar * zbar).sum()), int((n > 0).sum()), s2 / nn_
 
 
 def channels(obs: Observations, pred, ctx) -> dict:
@@ -140,8 +145,8 @@ def statistics(obs: Observations, pred, ctx) -> dict[str, Stat]:
         for aname, ax in axs.items():
             lab = torch.where(mask, ax.labels, -1)
             nb = ax.centres.numel()
-            zbar, n, pb, s, df = _binned(z.masked_fill(~mask, 0.0), phys, lab, nb)
-            out[f"{cname}|{aname}"] = Stat(f"{cname}|{aname}", s, df, zbar, n, pb, ax)
+            zbar, n, pb, s, df, se2 = _binned(z.masked_fill(~mask, 0.0), phys, lab, nb)
+            out[f"{cname}|{aname}"] = Stat(f"{cname}|{aname}", s, df, zbar, n, pb, ax, se2)
     with torch.no_grad():
         if obs.frames >= 3:
             for cname, x, mu, sd, mask in (

@@ -104,6 +104,16 @@ class DiagnosisModel:
         m.values.update(init)
         return m
 
+    def without(self, name: str) -> DiagnosisModel:
+        """A copy without effect ``name`` (its values and profiles dropped)."""
+        m = self.copy()
+        if name in m.effects:
+            m.effects.remove(name)
+        m.values = {k: v for k, v in m.values.items() if not k.startswith(name + ".")}
+        if name == "fpn_pattern":
+            m.profiles = {}
+        return m
+
     def readout_fpn(self) -> ReadoutFPN:
         """The baseline FPN as the simulator's :class:`ReadoutFPN` (amplitude >= 0, phases)."""
         v = self.values
@@ -126,6 +136,8 @@ class DiagnosisModel:
             f = K.SPEED_OF_LIGHT_AIR / (2.0 * self.values["phase_wrapping.range"])
         return replace(
             self.camera,
+            full_well=1e30,  # the model has no saturation unless `saturation` is in it
+            adc_bits=32,
             modulation_frequency=f,
             conversion_gain=self.values["camera.conversion_gain"],
             read_noise=self.values["camera.read_noise"],

@@ -2,8 +2,10 @@
 
 Content: ``{"content": "tof_fpn_torch.diagnosis_model", "format_version": 1, "camera": {...},
 "values": {"owner.field": float}, "effects": [names], "profiles": {"columns": [...], "rows":
-[...]}, "frame_interval", "impulsive_level", "fpn_scale", "simulation": [terms]}``; the last is the
-complete simulator chain (class and fields of every term) for readers, not read back.
+[...]}, "frame_interval", "impulsive_level", "fpn_scale", "fitted_camera": {...}, "simulation":
+[terms]}``; ``camera`` holds the settings the model was built with (the fitted conversion gain and
+read noise are in ``values``); the last two are the fitted camera and the complete simulator chain
+(class and fields of every term) for readers, not read back.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ def model_to_dict(model: DiagnosisModel) -> dict:
         "content": MODEL_CONTENT,
         "format_version": MODEL_VERSION,
         "camera": {k: _plain(v) for k, v in model.camera.as_dict().items()},
+        "fitted_camera": {k: _plain(v) for k, v in model.simulation_camera().as_dict().items()},
         "values": {k: float(v) for k, v in sorted(model.values.items())},
         "effects": list(model.effects),
         "profiles": {k: _plain(v) for k, v in model.profiles.items()},

@@ -11,7 +11,7 @@ import torch
 
 from .. import constants as K
 from ..io import Recording, read_recording, read_scene
-from .catalogue import CATALOGUE
+from .catalogue import CATALOGUE, REVEALED_WITHOUT_SCENE
 from .data import Observations, observe
 from .describe import describe_effect, where
 from .fit import evaluate, fit, init_model, robust_start
@@ -43,6 +43,18 @@ class Diagnosis:
     def effects(self) -> list[str]:
         """Names of the effects found, best first (empty: ``none``)."""
         return [e["name"] for e in self.report["effects"]]
+
+    def files(self, figures: bool = True) -> dict[str, bytes]:
+        """Every output file as ``{name: bytes}``: report.json, report.md, model.json, figures."""
+        from .report import render
+
+        return render(self, figures)
+
+    def write(self, out_dir, figures: bool = True) -> list[str]:
+        """Write the outputs into ``out_dir`` (all or nothing); returns the paths written."""
+        from .report import write_outputs
+
+        return write_outputs(self.files(figures), out_dir)
 
 
 @contextmanager
@@ -134,8 +146,15 @@ def diagnose(
     recording, scene = _load(recording, scene)
     with _threads(threads):
         obs = observe(recording, scene)
+        only = REVEALED_WITHOUT_SCENE if obs.scene_estimated else None
         if baseline is None:
             model = init_model(obs, obs.scene())
+            if obs.scene_estimated:  # every pixel's amplitude carries its own reflectance
+                model = model.with_effect("pixel_gain", {"pixel_gain.rms": K.DIAG_TEXTURE_RMS})
+                obs.notes.append(
+                    "the baseline holds a per-pixel amplitude texture (pixel_gain): without a "
+                    "scene, reflectance texture and pixel gain cannot be told apart"
+                )
         else:
             model = adapt_model(
                 load_model(baseline) if not isinstance(baseline, DiagnosisModel) else baseline, obs
@@ -154,7 +173,7 @@ def diagnose(
         nll_base = evaluate(base, obs, ctx)
         before = _stats(base, obs, ctx, replicates, seed)
         rankings, effects = [], []
-        ranking, base_train = rank(base, obs, ctx, start_values=start_values)
+        ranking, base_train = rank(base, obs, ctx, start_values=start_values, only=only)
         heldout_before = evaluate(base_train, obs, ctx, "test")
         current, train_model = base, base_train
         for _ in range(max_effects):
@@ -188,7 +207,12 @@ def diagnose(
                 for r in ranking
                 if r["name"] != name and r["score"] is not None and r["score"] >= K.DIAG_RETRY_GAIN
             ][: K.DIAG_RETRY_MAX]
+            again += [n for n in _signalled(current, obs, ctx, before) if n not in again]
+            if only is not None:
+                again = [n for n in again if n in only]
             ranking, train_model = rank(current, obs, ctx, only=again, start_values=start_values)
+        if len(effects) > 1:  # backward check: a term a later one made redundant is dropped
+            current, effects = _prune(current, effects, obs, ctx)
         if effects:
             train_model, _ = fit(current, obs, ctx, "train")
         heldout_after = evaluate(train_model, obs, ctx, "test")
@@ -230,6 +254,33 @@ def diagnose(
             "seconds": round(time.perf_counter() - t0, 2),
         }
     return Diagnosis(report, base, current, obs, ctx, before, after, rankings)
+
+
+def _signalled(model, obs, ctx, before: dict) -> list[str]:
+    """Terms whose located statistics are significant under ``model`` (the nulls of ``before``
+    reused: no new bootstrap)."""
+    with torch.no_grad():
+        st = statistics(obs, predict(model, obs, scene=ctx.scene), ctx)
+    for k, s in st.items():
+        if k in before:
+            s.null = before[k].null
+    sig = {s.key for s in locate(st)}
+    return [
+        n
+        for n, e in CATALOGUE.items()
+        if e.implemented and n not in model.effects and any(a in sig for a in e.axes)
+    ]
+
+
+def _prune(model, effects: list, obs, ctx):
+    nll_cur = evaluate(model, obs, ctx)
+    for e in list(effects):
+        wo, nll_wo = fit(model.without(e["name"]), obs, ctx)
+        d_aic = 2 * (wo.n_parameters() - model.n_parameters()) + 2 * (nll_wo - nll_cur)
+        if d_aic < K.DIAG_MIN_DAIC:
+            model, nll_cur = wo, nll_wo
+            effects = [x for x in effects if x is not e]
+    return model, effects
 
 
 def _where(name: str, before: dict, after: dict) -> list[dict]:
