@@ -49,6 +49,7 @@ def init_model(obs: Observations, scene) -> DiagnosisModel:
         "readout_fpn.sin_2pi3": 0.0,
         "readout_fpn.cos_pi": 0.0,
         "readout_fpn.sample_phase": 0.25 * math.pi,
+        "camera.ambient_irradiance": float(obs.camera().ambient_irradiance),
     }
     dt = obs.times[1:] - obs.times[:-1]
     model = DiagnosisModel(cam, values, frame_interval=float(dt.mean()) if dt.numel() else 1.0)

@@ -47,6 +47,7 @@ CORE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("photons.responsivity", "log", 1.0),
     ParamSpec("camera.conversion_gain", "log", 1.0, "e-/DN"),
     ParamSpec("camera.read_noise", "rootabs", 1.0, "e-"),
+    ParamSpec("camera.ambient_irradiance", "abs", 0.1, "W/m^2"),
     ParamSpec("readout_fpn.cos_2pi3", "lin", 1.0, "e-"),
     ParamSpec("readout_fpn.sin_2pi3", "lin", 1.0, "e-"),
     ParamSpec("readout_fpn.cos_pi", "lin", 1.0, "e-"),
@@ -141,6 +142,7 @@ class DiagnosisModel:
             modulation_frequency=f,
             conversion_gain=self.values["camera.conversion_gain"],
             read_noise=self.values["camera.read_noise"],
+            ambient_irradiance=self.values.get("camera.ambient_irradiance", 0.1),
         )
 
     def simulation(self) -> Simulation:
@@ -207,15 +209,21 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
     v = model.values if v is None else v
     scene = obs.scene() if scene is None else scene
     cam = model.camera
-    # the photo-charge is linear in the responsivity: the unit-responsivity samples are cached
+    # the photo-charge is linear in the responsivity and in the ambient irradiance: the
+    # unit-responsivity active and ambient samples are cached
     key = (id(scene), float(cam.modulation_frequency), cam.n_phases, float(cam.integration_time))
-    unit = _PHOTONS_CACHE.get(key)
-    if unit is None:
+    units = _PHOTONS_CACHE.get(key)
+    if units is None:
         with torch.no_grad():
-            unit = Photons(responsivity=1.0).mean_samples(cam, scene)
+            act = Photons(responsivity=1.0).mean_samples(replace(cam, ambient_irradiance=0.0), scene)
+            amb = Photons(responsivity=1.0).mean_samples(
+                replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene
+            )
         _PHOTONS_CACHE.clear()
-        _PHOTONS_CACHE[key] = unit
-    state = SimState(cam, scene, unit * v["photons.responsivity"], None)
+        _PHOTONS_CACHE[key] = units = (act, amb)
+    amb_irr = v.get("camera.ambient_irradiance", cam.ambient_irradiance)
+    samples = (units[0] + units[1] * amb_irr) * v["photons.responsivity"]
+    state = SimState(cam, scene, samples, None)
     chain = [(STAGE.get(_TERM_OF[e], 50), e) for e in model.effects]
     chain.append((STAGE["readout_fpn"], "_readout_fpn"))
     for _, e in sorted(chain):

@@ -2,7 +2,7 @@
 
 Every parameter has a key (``"photons.responsivity"``, ``"cyclic_error.cos3"``), a kind and a
 scale: ``lin`` (value = u * scale, any sign), ``log`` (value = scale * e^u, > 0), ``logit``
-(value = scale / (1 + e^-u), in (0, scale)) or ``rootabs`` (value = sqrt(scale |u|), >= 0: a
+(value = scale / (1 + e^-u), in (0, scale)) ``abs`` (value = scale |u|, >= 0, linear near zero) or ``rootabs`` (value = sqrt(scale |u|), >= 0: a
 standard deviation whose variance is linear in ``u``, so that the optimiser does not stall on the
 plateau a logarithm or a softplus has near zero). The model stores physical values; the fit works on
 ``u`` so that one step of the optimiser is about one scale.
@@ -40,6 +40,8 @@ def to_u(spec: ParamSpec, value: float) -> float:
         return math.log(p / (1 - p))
     if spec.kind == "rootabs":
         return v * v / spec.scale
+    if spec.kind == "abs":
+        return v / spec.scale
     raise ValueError(f"unknown parameter kind {spec.kind!r}")
 
 
@@ -53,6 +55,8 @@ def from_u(spec: ParamSpec, u):
         return spec.scale * (
             torch.sigmoid(u) if isinstance(u, torch.Tensor) else 1 / (1 + math.exp(-u))
         )
+    if spec.kind == "abs":
+        return spec.scale * (u.abs() if isinstance(u, torch.Tensor) else abs(u))
     if spec.kind == "rootabs":
         if isinstance(u, torch.Tensor):
             return torch.sqrt(spec.scale * u.abs() + 1e-300)

@@ -99,6 +99,7 @@ def load_model(source) -> DiagnosisModel:
     if bad:
         raise ValueError(f"{where}: unknown effects {bad}; known: {sorted(CATALOGUE)}")
     values = {k: float(v) for k, v in data["values"].items()}
+    values.setdefault("camera.ambient_irradiance", float(cam.ambient_irradiance))
     need = [s.key for s in CORE_SPECS] + [s.key for e in effects for s in CATALOGUE[e].specs]
     missing = [k for k in need if k not in values]
     if missing:
