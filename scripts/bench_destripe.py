@@ -1,7 +1,8 @@
 """Broadband destriping (tof_fpn_torch.runtime.destripe): every must-show number, printed and as JSON.
 
     python scripts/bench_destripe.py                       # all sections, writes the JSON and figure
-    python scripts/bench_destripe.py --only adi            # adi | sim | speed | never-hurts
+    python scripts/bench_destripe.py --only adi            # adi | sim | sim-calibrated | speed |
+                                                           # never-hurts
     python scripts/bench_destripe.py --json out.json --figure docs/figures/destripe_adi.png
 
 Sections (definitions in docs/destripe.md):
@@ -16,6 +17,12 @@ Sections (definitions in docs/destripe.md):
   random_offset, random_gain), planar and synthetic scenes, three illumination levels; PSNR (eq. 9,
   D_MAX 7.5 m) of no correction, the notch stage (suppression_from_design()), destripe in the depth
   domain and in the complex domain, the FPN-free simulation and the oracle (true offsets removed).
+* ``sim-calibrated``: the ``sim`` cases (same simulator, scenes, levels, seeds and held-out frame),
+  corrected by a complex fixed pattern (tof_fpn_torch.analysis.calibrate_complex_pattern ->
+  ComplexPatternCorrection) calibrated on T = 16 other frames: of the same scene with fresh noise,
+  and separately of 16 different scenes of the same kind; beside no correction, notch, the
+  single-frame depth and complex domains, FPN-free and the oracle. Also: the pattern calibrated on
+  FPN-free frames applied to the FPN-free held-out frame (a camera without the pattern).
 * ``speed``: destripe() on 32 x 424 x 512 float32 depth-like frames against the 42-tap notch filter
   (``filter_from_design(41, 0.12)`` uncompensated, as scripts/bench_fpn_filter.py), 2 threads,
   alternating calls: the median of the per-round ratios and the ratio of the minima (the machine's
@@ -40,6 +47,7 @@ import numpy as np
 import torch
 
 from tof_fpn_torch import constants as K
+from tof_fpn_torch.analysis.calibrate_complex import calibrate_complex_pattern
 from tof_fpn_torch.analysis.metrics import psnr
 from tof_fpn_torch.analysis.stripe_energy import (
     column_stripe_energy,
@@ -59,6 +67,14 @@ from tof_fpn_torch.sim import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rel(path: Path) -> str:
+    """``path`` relative to the checkout when inside it (the JSON is committed)."""
+    path = Path(path).resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
 REAL = ROOT.parent / "shared" / "data" / "real" / "adi_adtf3175"
 #: ADI wall region: rows above the clutter, columns away from the borders, split between halves
 ADI_ROWS, ADI_BORDER, ADI_SPLIT = 416, 8, 208
@@ -123,7 +139,7 @@ def section_adi(figure: Path | None) -> dict:
     res["invalid_pixels_unchanged"] = bool(torch.equal(out[~v], depth[~v]))
     if figure is not None:
         _figure(depth, out, region, figure)
-        res["figure"] = str(figure)
+        res["figure"] = _rel(figure)
     return res
 
 
@@ -260,6 +276,139 @@ def section_sim(seeds=(0, 1, 2), levels=(0.03, 0.1, 0.3, 1.0), offset=100.0, gai
     return out
 
 
+#: sim-calibrated: frames per calibration, and the seeds of its simulations / scenes (held-out: s)
+CAL_FRAMES, CAL_SEED_SAME, CAL_SEED_DIFF, CAL_SCENE_SEED = 16, 1000, 2000, 100
+
+
+def _sim_scenes(size: int = 204) -> dict:
+    """The ``sim`` scenes: ``make(seed, batch)``."""
+    return {
+        "planar": lambda s, b=1: planar_scene(size, size, seed=s, batch=b),
+        "synthetic": lambda s, b=1: synthetic_scene(
+            size, size, seed=s, batch=b, depth_range=(1.0, 6.0)
+        ),
+    }
+
+
+def _simulate(cam: Camera, scene, seed: int, frames: int = 1, offset=100.0, gain=0.002, raw=False):
+    """Depth (saturated pixels 0, as cameras report them, unless ``raw``), amplitude and the
+    saturation mask."""
+    terms = default_terms()
+    terms[2] = _fpn_term(offset, gain)
+    res = Simulation(cam, terms).run(scene, frames=frames, seed=seed)
+    d = res.depth if raw else torch.where(res.saturated, 0.0, res.depth)
+    return d, res.amplitude, res.saturated
+
+
+def calibrated_case(sname: str, level: float, seed: int, frames: int = CAL_FRAMES, size=204):
+    """One ``sim-calibrated`` case: ``{method: PSNR gain over no correction (dB)}`` on the held-out
+    frame (the ``sim`` section's), plus the calibrations' shrink factors, the patterns' errors
+    against the simulator's complex offsets and the FPN-free change."""
+    f = K.CAMCUBE_MODULATION_FREQUENCY_HZ
+    make = _sim_scenes(size)[sname]
+    cam = Camera(integration_time=1e-3, illumination_power=level, ambient_irradiance=0.02)
+    fpn = _fpn_term(100.0, 0.002)
+    scene = make(seed)
+    d, a, sat = _simulate(cam, scene, seed)
+    d0, a0, sat0 = _simulate(cam, scene, seed, offset=0.0, gain=0.0, raw=True)
+    ok, gt = ~sat, scene.depth
+    same = _simulate(cam, scene, CAL_SEED_SAME + seed, frames)
+    many = make(CAL_SCENE_SEED + frames * seed, frames)
+    diff = _simulate(cam, many, CAL_SEED_DIFF + seed)
+    free = _simulate(cam, many, CAL_SEED_DIFF + seed, offset=0.0, gain=0.0)
+    truth = _true_offsets(fpn, cam, size)
+    out: dict = {"shrink_factor": {}, "pattern_error": {}}
+    preds = {
+        "none": d,
+        "notch": suppression_from_design()(d, a),  # as in ``sim``: the default stage, gated
+        "notch_ungated": suppression_from_design(gate=False)(d, a),  # notch + eq. 11 fusion
+        "depth": destripe(d, a),
+        "complex": destripe(d, a, domain="complex", modulation_frequency_hz=f),
+        "fpn_free": torch.where(sat, 0.0, d0),
+        "oracle": _oracle(d, a, fpn, cam),
+    }
+    for name, (cd, ca, _) in (("calibrated_same", same), ("calibrated_diff", diff)):
+        pat = calibrate_complex_pattern(cd, ca, f)
+        preds[name] = pat.module()(d, a)
+        est = torch.stack([pat.column_offset_re, pat.column_offset_im])
+        out["shrink_factor"][name] = pat.shrink_factor
+        out["pattern_error"][name] = float(((est - truth) ** 2).sum() / (truth**2).sum())
+    base = float(psnr(d, gt, mask=ok)[0])
+    out["psnr_none_db"] = base
+    out["gain_db"] = {m: float(psnr(p, gt, mask=ok)[0]) - base for m, p in preds.items()}
+    # a camera without the pattern: calibrated on FPN-free frames, applied to the FPN-free frame
+    pat0 = calibrate_complex_pattern(free[0], free[1], f)
+    clean = torch.where(sat0, 0.0, d0)
+    out["fpn_free_change_db"] = float(psnr(pat0.module()(clean, a0), gt, mask=~sat0)[0]) - float(
+        psnr(clean, gt, mask=~sat0)[0]
+    )
+    return out
+
+
+def _true_offsets(fpn: ReadoutFPN, camera: Camera, width: int) -> torch.Tensor:
+    """(2, W) the simulator's complex column offsets (DN), zero mean (what can be identified)."""
+    n = camera.n_phases
+    off, _ = fpn.patterns(n, width, torch.device("cpu"), torch.float64)
+    th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
+    c = torch.stack([(off * torch.cos(th)[:, None]).sum(0), -(off * torch.sin(th)[:, None]).sum(0)])
+    c = (2.0 / n) * c / camera.conversion_gain
+    return c - c.mean(-1, keepdim=True)
+
+
+def section_sim_calibrated(seeds=(0, 1, 2), levels=(0.03, 0.1, 0.3, 1.0)) -> dict:
+    out: dict = {
+        "settings": {
+            "as": "sim (same camera, FPN, scenes, levels, seeds; held-out frame = the sim frame)",
+            "frames": CAL_FRAMES,
+            "same_scene": f"scene seed s, simulation seed {CAL_SEED_SAME} + s, {CAL_FRAMES} frames",
+            "different_scenes": f"scene seeds {CAL_SCENE_SEED} + {CAL_FRAMES} s + (0..15), "
+            f"simulation seed {CAL_SEED_DIFF} + s",
+            "calibration": "calibrate_complex_pattern(depth, amplitude, f) defaults",
+        }
+    }
+    for sname in ("planar", "synthetic"):
+        for level in levels:
+            cases = [calibrated_case(sname, level, s) for s in seeds]
+            mean = statistics.mean
+            out[f"{sname}/P={level:g}"] = {
+                "psnr_none_db": mean(c["psnr_none_db"] for c in cases),
+                "gain_over_none_db": {
+                    m: mean(c["gain_db"][m] for c in cases) for m in cases[0]["gain_db"]
+                },
+                "gain_per_seed_db": [c["gain_db"] for c in cases],
+                "shrink_factor": [c["shrink_factor"] for c in cases],
+                "pattern_error": [c["pattern_error"] for c in cases],
+                "fpn_free_change_db": [c["fpn_free_change_db"] for c in cases],
+            }
+    return out
+
+
+CAL_COLUMNS = (
+    ("notch", "notch (gated)"),
+    ("notch_ungated", "notch + fusion"),
+    ("depth", "depth domain"),
+    ("complex", "complex domain"),
+    ("calibrated_same", "calibrated, same scene"),
+    ("calibrated_diff", "calibrated, 16 scenes"),
+    ("fpn_free", "FPN-free"),
+    ("oracle", "oracle"),
+)
+
+
+def calibrated_table(res: dict) -> str:
+    """The ``sim-calibrated`` result as the markdown table of docs/destripe.md."""
+    head = "| scene, P | PSNR none | " + " | ".join(t for _, t in CAL_COLUMNS) + " |"
+    lines = [head, "|" + "---|" * (len(CAL_COLUMNS) + 2)]
+    for key, r in res.items():
+        if "/P=" not in key:
+            continue
+        sname, level = key.split("/P=")
+        g = r["gain_over_none_db"]
+        cells = [f"{g[m]:+.2f}" for m, _ in CAL_COLUMNS]
+        lines.append(f"| {sname}, {level} | {r['psnr_none_db']:.2f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _load() -> float | None:
     try:
         return os.getloadavg()[0]
@@ -358,13 +507,15 @@ def section_never_hurts(sizes=(32, 33, 64, 65, 101, 128, 204, 255, 256, 511, 512
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    p.add_argument("--only", choices=("adi", "sim", "speed", "never-hurts"), action="append")
+    p.add_argument(
+        "--only", choices=("adi", "sim", "sim-calibrated", "speed", "never-hurts"), action="append"
+    )
     p.add_argument("--json", type=Path, default=ROOT / "docs" / "figures" / "destripe_bench.json")
     p.add_argument("--figure", type=Path, default=ROOT / "docs" / "figures" / "destripe_adi.png")
     p.add_argument("--rounds", type=int, default=31, help="speed rounds")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
-    sections = args.only or ["adi", "sim", "speed", "never-hurts"]
+    sections = args.only or ["adi", "sim", "sim-calibrated", "speed", "never-hurts"]
     torch.set_num_threads(args.threads)
     cmd = sys.argv[1:] if argv is None else argv
     results: dict = {"command": " ".join(["python scripts/bench_destripe.py", *cmd])}
@@ -374,16 +525,29 @@ def main(argv=None) -> None:
             results[name] = section_adi(args.figure)
         elif name == "sim":
             results[name] = section_sim()
+        elif name == "sim-calibrated":
+            results[name] = section_sim_calibrated()
         elif name == "speed":
             results[name] = section_speed(args.rounds, args.threads)
         else:
             results[name] = section_never_hurts()
         results[name]["seconds"] = time.perf_counter() - t
         print(f"== {name}")
+        if name == "sim-calibrated":
+            print(calibrated_table(results[name]))
+            continue
         shown = dict(results[name])
         shown.pop("cases", None)
         print(json.dumps(shown, indent=1, default=float))
     if args.json:
+        # sections not run this time keep their last results; each section names its command
+        old = json.loads(args.json.read_text()) if args.json.exists() else {}
+        for section in old.values():
+            if isinstance(section, dict) and "command" not in section:
+                section["command"] = old.get("command")
+        for name in sections:
+            results[name]["command"] = results["command"]
+        results = {**old, **results}
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=1, default=float) + "\n")
         print(f"wrote {args.json}")

@@ -41,9 +41,22 @@ ALLOWED: dict[str, set[str]] = {
         "cameras",
     },
     "export": {"runtime"},
+    "learn": {
+        "runtime",
+        "build",
+        "denoise",
+        "analysis",
+        "sim",
+        "design",
+        "cameras",
+        "plotting",
+        "io",
+    },
     # the file layer: beside the simulator (never imports it), reads the validity rule and the
     # camera profile names
     "io": {"runtime", "cameras"},
+    # tof-fpn clean: the pipeline over files (docs/clean.md)
+    "clean": {"runtime", "build", "denoise", "io", "cameras", "analysis"},
     # sim vs. recording (issue 10): reads recordings / scenes, runs the simulator, fits it
     "diagnosis": {
         "runtime",
@@ -66,7 +79,9 @@ ALLOWED: dict[str, set[str]] = {
         "export",
         "plotting",
         "cameras",
+        "learn",
         "io",
+        "clean",
         "diagnosis",
     },
 }
@@ -79,7 +94,8 @@ THIRD_PARTY: dict[str, set[str]] = {
     "sim": {"torch"},
     "plotting": {"matplotlib"},
     "cameras": set(),
-    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av"},
+    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av", "PIL"},
+    "clean": {"torch", "numpy", "tqdm", "ray", "tomli"},
     "diagnosis": {"torch", "numpy"},
 }
 

@@ -11,6 +11,7 @@ Layers (docs/architecture.md), each a subpackage that may import only the ones b
 - :mod:`.sim` -- the raw-level simulator;
 - :mod:`.build` -- run-time modules from a design or from data (:func:`suppression_from_design`);
 - :mod:`.io` -- the file layer: camera files, the recording / scene formats, :class:`FrameDataset`;
+- :mod:`.clean` -- ``tof-fpn clean``: the pipeline over files, resumable, local or Ray;
 - :mod:`.experiments`, :mod:`.export`, :mod:`.cli` -- the paper's experiments, export, ``tof-fpn``.
 
 The names below are loaded on first use, so ``import tof_fpn_torch.runtime`` loads torch only.
@@ -66,6 +67,7 @@ _SUBPACKAGES = (
     "analysis",
     "build",
     "cameras",
+    "clean",
     "cli",
     "constants",
     "denoise",

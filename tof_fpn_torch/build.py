@@ -25,12 +25,22 @@ from .analysis.stripe_energy import column_stripe_energy, structure_mask
 from .analysis.stripes import StripeEstimate, estimate_stripes
 from .cameras import profile
 from .denoise import estimate_noise_k, estimate_sigma
-from .design import compensate_half_sample, design_fpn, max_rho
-from .runtime import AmplitudeFusion, Destripe, FPNFilter, FPNSuppression, destripe, valid_mask
+from .design import compensate_half_sample, design_fpn, fixed_zero_taps, max_rho
+from .runtime import (
+    AmplitudeFusion,
+    Destripe,
+    FPNFilter,
+    FPNSuppression,
+    TrainableFusion,
+    destripe,
+    keep_zeros,
+    valid_mask,
+)
 
 __all__ = [
     "MAX_RIPPLE_DB",
     "broadband_from_data",
+    "trainable_suppression",
     "filter_from_design",
     "fusion_from_data",
     "suppression_from_data",
@@ -287,3 +297,30 @@ def broadband_from_data(
     if not dims:
         return None
     return Destripe(dim=tuple(dims) if len(dims) > 1 else dims[0])
+
+
+def trainable_suppression(
+    order: int = K.DEFAULT_ORDER,
+    rho: float = K.DEFAULT_RHO,
+    *,
+    notches: Sequence[float] = K.DEFAULT_NOTCHES,
+    dim: int | tuple[int, ...] = -1,
+    camera: str | None = None,
+    low: float | None = None,
+    high: float | None = None,
+    floor: float = K.FUSION_FLOOR,
+    gate: bool = True,
+    **kwargs,
+) -> FPNSuppression:
+    """The stage as a trainable first layer, initialised from the design.
+
+    The notch taps train through ``G`` of ``H = A G`` with the zeros of ``A`` held
+    (:func:`~tof_fpn_torch.runtime.keep_zeros`); the fusion is a
+    :class:`~tof_fpn_torch.runtime.TrainableFusion` starting at the camera's thresholds (CamCube's
+    by default, or ``low`` / ``high``). ``kwargs`` go to :func:`filter_from_design`. Freeze with
+    :func:`tof_fpn_torch.runtime.freeze` before export.
+    """
+    filt = filter_from_design(order, rho, notches=notches, dim=dim, trainable=True, **kwargs)
+    keep_zeros(filt, fixed_zero_taps(notches))
+    lo, hi = _thresholds(camera, low, high)
+    return FPNSuppression(filt, TrainableFusion(lo, hi, floor), gate=gate)

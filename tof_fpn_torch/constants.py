@@ -152,6 +152,34 @@ DESTRIPE_LOCAL_WIDTH: int = 128
 #: a third of one frame's noise.
 CALIBRATION_MIN_PIXEL_FRAMES: int = 9
 
+#: :func:`~tof_fpn_torch.analysis.calibrate_complex_pattern`: a pixel brighter than this multiple of
+#: its frame's median amplitude is left out of the estimate (its scene texture is strongest and a
+#: read-out offset barely moves its depth: the error is ``|o| / A``); 2: measured best of 1.5 - 3 on
+#: the raw simulator (docs/destripe.md).
+COMPLEX_CAL_AMPLITUDE_CAP: float = 2.0
+#: ... the component of a pixel's column difference along its own phasor (where amplitude texture
+#: lies) is weighted ``1 - beta``, ``beta = A^2 / (A^2 + (k sigma)^2)`` with ``sigma`` the per-channel
+#: noise of ``z`` and ``k`` this value (2 - 5 measured equally good; 10 lets the painted wall of the
+#: bright planar scene in).
+COMPLEX_CAL_TEXTURE_K: float = 3.0
+#: ... ridge (share of the pixel count) on the 2 x 2 normal equations of each column pair: a
+#: direction seen by fewer pixels than this share (a column of one phase) is left at ~0.
+COMPLEX_CAL_RIDGE: float = 0.02
+#: ... width (columns) of the high-pass of the calibrated profile (at most a quarter of the line is
+#: used): wider than the single frame's ``DESTRIPE_WIDTH``, as T frames average the scene's slow
+#: column profile down (51 against 31 on the raw simulator: +0.14 dB over the 16 calibrations of
+#: docs/destripe.md, +0.5 dB at the darkest level, -0.1 dB on the bright planar scene).
+COMPLEX_CAL_WIDTH: int = 51
+
+# --- tof-fpn clean (tof_fpn_torch.clean) -------------------------------------------------------
+#: Files per group and frames per compute batch of ``tof-fpn clean``: the batches are fixed by the
+#: sorted file list, so that a resumed run or the Ray engine computes every frame in the same batch
+#: (batched torch kernels differ in the last bits between batch sizes).
+CLEAN_BATCH: int = 8
+#: Frames (the first in file order) on which ``auto`` / ``data`` stages of ``tof-fpn clean`` are
+#: measured when the run starts.
+CLEAN_CALIBRATION_FRAMES: int = 8
+
 # --- diagnosis: simulation vs. recording (issue 10; tof_fpn_torch.diagnosis) --------------------
 #: Scales of the optimiser's variables: depth-like parameters move in mm steps, correlation
 #: harmonics in 1 % steps of the fundamental.

@@ -19,11 +19,13 @@ import torch
 from torch import nn
 
 from . import constants as K
-from .runtime import FPNFilter
+from .runtime import FPNFilter, freeze
 
-__all__ = ["MIN_OPSET", "export_onnx", "export_torchscript", "filter_metadata"]
+__all__ = ["EXPORT_TOLERANCE", "MIN_OPSET", "export_onnx", "export_torchscript", "filter_metadata"]
 
 MIN_OPSET = 17
+#: largest |exported - eager| accepted when an export is checked (metres for depth models)
+EXPORT_TOLERANCE = 1e-5
 _ONNX_PACKAGES = ("onnx", "onnxscript")
 
 
@@ -55,9 +57,10 @@ def filter_metadata(module: nn.Module) -> dict[str, str]:
 
 def export_torchscript(module: nn.Module, path: str | Path | None = None) -> torch.jit.ScriptModule:
     """``torch.jit.script`` a copy of the module in eval mode and save it to ``path`` if given
-    (parent directories are created)."""
+    (parent directories are created). Trained parametrisations (e.g. notch taps that keep their
+    zeros, :func:`~tof_fpn_torch.runtime.keep_zeros`) are frozen in the copy first."""
     _check_module(module)
-    scripted = torch.jit.script(copy.deepcopy(module).eval())
+    scripted = torch.jit.script(freeze(copy.deepcopy(module)).eval())
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         scripted.save(str(path))
@@ -82,7 +85,8 @@ def export_onnx(
     opset: int = 18,
     dynamic: bool = True,
 ) -> Path:
-    """Export to ONNX (opset >= 17) at ``path``, with the design in ``metadata_props``.
+    """Export to ONNX (opset >= 17) at ``path``, with the design in ``metadata_props``; a copy
+    of the module is exported, its parametrisations frozen.
 
     Args:
         module: e.g. :class:`FPNSuppression` (inputs ``depth, amplitude``, or ``depth`` alone when
@@ -110,7 +114,7 @@ def export_onnx(
             "FixedPatternCorrection, which ONNX takes"
         )
 
-    model = copy.deepcopy(module).eval()
+    model = freeze(copy.deepcopy(module)).eval()
     if isinstance(model, FPNFilter):
         names = ["x"]
     elif getattr(model, "needs_amplitude", True):

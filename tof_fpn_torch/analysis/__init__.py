@@ -8,21 +8,26 @@ experiments and the diagnosis; nothing in the run-time package depends on it.
 - :mod:`.metrics`: PSNR (eq. 9), RMSE, MAE, the LOW / IMP shares of Table II.
 - :mod:`.stripes`: :func:`estimate_stripes`, periodic column / row patterns in depth frames.
 - :mod:`.calibrate`: :func:`calibrate_fixed_pattern` -> :class:`FixedPattern` (many frames).
+- :mod:`.calibrate_complex`: :func:`calibrate_complex_pattern` -> :class:`ComplexPattern` (complex
+  read-out offsets from many frames).
 - :mod:`.stripe_energy`: :func:`column_stripe_energy` (white noise does not count),
   :func:`lowpass_change`.
 """
 
 from . import metrics
 from .calibrate import FixedPattern, calibrate_fixed_pattern
+from .calibrate_complex import ComplexPattern, calibrate_complex_pattern
 from .metrics import impulsive_fraction, low_sensing_fraction, mae, mse, psnr, rmse
 from .stripe_energy import StripeEnergy, column_stripe_energy, lowpass_change
 from .stripes import StripeComponent, StripeEstimate, estimate_stripes
 
 __all__ = [
+    "ComplexPattern",
     "FixedPattern",
     "StripeComponent",
     "StripeEnergy",
     "StripeEstimate",
+    "calibrate_complex_pattern",
     "calibrate_fixed_pattern",
     "column_stripe_energy",
     "estimate_stripes",

@@ -1,8 +1,10 @@
-"""``tof-fpn export``: write an FPNSuppression stage as TorchScript or ONNX."""
+"""``tof-fpn export``: write an FPNSuppression stage, or a trained whole model (``--model``), as
+TorchScript or ONNX."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import inspect
 import json
 import os
@@ -43,6 +45,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="output file, written under exactly this name (default "
         + " or ".join(f"{DEFAULT_STEM}{s} for {f}" for f, s in SUFFIXES.items())
         + ")",
+    )
+    p.add_argument(
+        "--model",
+        metavar="CHECKPOINT",
+        help="export this trained whole model (front end + network; a checkpoint written by "
+        "scripts/train_front_ends.py or tof_fpn_torch.learn.save_model) instead of building a "
+        "stage; the outputs are checked against eager and the design options do not apply",
     )
     p.add_argument(
         "--order",
@@ -122,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
     elif opset is not None:
         raise UsageError(f"--opset {opset} applies to --format onnx only, not {args.format}")
     check_output_file("--out", out)
+    if args.model is not None:
+        return _run_model(args, out, opset)
     notches = tuple(args.notch) if args.notch else K.DEFAULT_NOTCHES
     check_rho_fits(args.rho, notches)
 
@@ -140,7 +151,8 @@ def run(args: argparse.Namespace) -> int:
         if args.format == "torchscript":
             X.export_torchscript(module, out)
         else:
-            X.export_onnx(module, out, opset=opset)
+            with contextlib.redirect_stdout(sys.stderr):  # the exporter's progress lines
+                X.export_onnx(module, out, opset=opset)
     f = module.filter
     report = {
         "format": args.format,
@@ -169,3 +181,83 @@ def run(args: argparse.Namespace) -> int:
     report["created"] = created
     print(json.dumps(report, indent=2))
     return 0
+
+
+#: the stage-building options, with their defaults: refused together with ``--model``
+_DESIGN_OPTIONS: dict[str, object] = {
+    "order": K.DEFAULT_ORDER,
+    "rho": K.DEFAULT_RHO,
+    "notch": None,
+    "dim": "columns",
+    "no_adaptive": False,
+    "camera": "camcube",
+    "no_gate": False,
+}
+
+
+def _run_model(args: argparse.Namespace, out: str, opset: int | None) -> int:
+    given = [
+        "--" + k.replace("_", "-") for k, v in _DESIGN_OPTIONS.items() if getattr(args, k) != v
+    ]
+    if given:
+        raise UsageError(
+            f"{', '.join(given)} build a stage and do not apply with --model (the checkpoint "
+            "holds the trained front end)"
+        )
+    from ..learn import load_model
+
+    try:
+        model, info = load_model(args.model)
+    except (FileNotFoundError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+    import torch
+
+    gen = torch.Generator().manual_seed(0)
+    depth = 1.0 + 3.0 * torch.rand(2, 1, 48, 64, generator=gen)
+    amp = 1.0 + 100.0 * torch.rand(2, 1, 48, 64, generator=gen)
+    depth[0, 0, 5, 7] = float("nan")  # invalid pixels must come out invalid
+    depth[1, 0, 9, 10:13] = 0.0
+    with torch.no_grad():
+        ref = model(depth, amp)
+    with output_dirs(os.path.dirname(out)) as created:
+        if args.format == "torchscript":
+            got = X.export_torchscript(model, out)(depth, amp)
+        else:
+            with contextlib.redirect_stdout(sys.stderr):  # stdout holds the JSON report only
+                X.export_onnx(model, out, example_inputs=(depth, amp), opset=opset)
+            got = _run_onnx(out, depth, amp)
+    diff = float((got - ref).nan_to_num().abs().max())
+    invalid_kept = bool(torch.isnan(got[0, 0, 5, 7]) and (got[1, 0, 9, 10:13] == 0).all())
+    report = {
+        "format": args.format,
+        "out": out,
+        "model": args.model,
+        "front": info["front"],
+        "thresholds": list(info["thresholds"]),
+        "max_abs_diff_vs_eager": diff,
+        "invalid_kept": invalid_kept,
+        "created": created,
+    }
+    print(json.dumps(report, indent=2))
+    if diff > X.EXPORT_TOLERANCE or not invalid_kept:
+        print(
+            f"tof-fpn export: error: the exported model differs from eager by {diff:.3g} "
+            f"(tolerance {X.EXPORT_TOLERANCE:g}) or lost invalid pixels",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
+def _run_onnx(path: str, depth, amp):
+    import torch
+
+    try:
+        import onnxruntime as ort
+    except ModuleNotFoundError:
+        raise UsageError(
+            'checking the ONNX model needs onnxruntime: pip install "tof_fpn_torch[onnx]"'
+        ) from None
+    sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    (out,) = sess.run(None, {"depth": depth.numpy(), "amplitude": amp.numpy()})
+    return torch.from_numpy(out)

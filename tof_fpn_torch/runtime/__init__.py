@@ -12,17 +12,21 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.suppression`: :class:`FPNSuppression` (filter + fusion).
 - :mod:`.destripe`: :func:`destripe`, :class:`Destripe` (broadband column / row offsets, one frame).
 - :mod:`.fixed_pattern`: :class:`FixedPatternCorrection` (a calibrated fixed pattern, as buffers).
+- :mod:`.complex_pattern`: :class:`ComplexPatternCorrection` (a calibrated complex-domain pattern).
 """
 
+from .complex_pattern import ComplexPatternCorrection
 from .destripe import Destripe, destripe
 from .fixed_pattern import FixedPatternCorrection
 from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
 from .suppression import FPNSuppression
+from .trainable import KeepZeros, TrainableFusion, freeze, keep_zeros
 from .validity import all_valid, valid_mask
 
 __all__ = [
     "AmplitudeFusion",
+    "ComplexPatternCorrection",
     "Destripe",
     "FPNFilter",
     "FPNSuppression",
@@ -33,4 +37,8 @@ __all__ = [
     "destripe",
     "fpn_filter",
     "valid_mask",
+    "KeepZeros",
+    "TrainableFusion",
+    "freeze",
+    "keep_zeros",
 ]

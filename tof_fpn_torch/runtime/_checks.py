@@ -7,7 +7,13 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["check_image", "check_same_shape", "check_taps", "normalize_dims"]
+__all__ = [
+    "check_fusion_inputs",
+    "check_image",
+    "check_same_shape",
+    "check_taps",
+    "normalize_dims",
+]
 
 
 def check_image(x: torch.Tensor, name: str, channels: int | None = None) -> None:
@@ -38,6 +44,16 @@ def check_same_shape(a: torch.Tensor, b: torch.Tensor, name_a: str, name_b: str)
             f"{name_a} and {name_b} must have the same shape, got {list(a.shape)} and "
             f"{list(b.shape)}"
         )
+
+
+def check_fusion_inputs(
+    filtered: torch.Tensor, depth: torch.Tensor, amplitude: torch.Tensor
+) -> None:
+    """The inputs of an amplitude fusion: (B, 1, H, W) depth, amplitude and filtered depth."""
+    check_image(depth, "depth", 1)
+    check_image(amplitude, "amplitude", 1)
+    check_same_shape(filtered, depth, "filtered", "depth")
+    check_same_shape(amplitude, depth, "amplitude", "depth")
 
 
 def check_taps(taps: torch.Tensor) -> None:

@@ -40,7 +40,7 @@ import torch.nn.functional as F
 
 from .. import constants as K
 
-__all__ = ["column_offsets", "scale_moment"]
+__all__ = ["band_shrink", "column_offsets", "scale_moment"]
 
 
 def scale_moment(channels: int, clip: float) -> float:
@@ -269,7 +269,23 @@ def column_offsets(
     count = torch.ones_like(p_all[:, :1]) if valid is None else valid.sum(2, dtype=torch.float64)
     if shrink == "none":
         return _zero_mean(p_all, count).to(x.dtype), torch.ones_like(p_all[:, :1, :1]).to(x.dtype)
-    local = shrink == "local"
+    out, factors = band_shrink(p_top, p_bot, p_all, width, shrink == "local", local_width)
+    return _zero_mean(out, count).to(x.dtype), factors.to(x.dtype)
+
+
+def band_shrink(
+    p_top: torch.Tensor,
+    p_bot: torch.Tensor,
+    p_all: torch.Tensor,
+    width: int,
+    local: bool,
+    local_width: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Step 7 of the module docstring: ``p_all`` (N, K, W) split into octave bands (high-pass
+    widths :func:`band_widths` of ``width``), each band scaled by the cross-validated factor of the
+    same band of the independent estimates ``p_top`` and ``p_bot`` (per window of ``local_width``
+    when ``local``): ``(sum of the scaled bands, factors (bands, N, 1, W or 1))``."""
+    n = p_all.shape[0]
     out = torch.zeros_like(p_all)
     factors: list[torch.Tensor] = []
     # octave bands of the three profiles at once: coarsest = p - HP_w0, ..., finest = HP_wlast
@@ -284,7 +300,7 @@ def column_offsets(
         factors.append(f)
         out = out + f * c
         upper = lower
-    return _zero_mean(out, count).to(x.dtype), torch.stack(factors, 0).to(x.dtype)
+    return out, torch.stack(factors, 0)
 
 
 def _abs_sum(z: torch.Tensor) -> torch.Tensor:

@@ -51,11 +51,12 @@ Amplitude: in ``domain="depth"`` it only extends the validity rule (finite, ``>=
 import math
 
 import torch
-from torch import nn
 
 from .. import constants as K
 from ._checks import check_image, check_same_shape, normalize_dims
 from ._destripe_core import column_offsets
+from ._phasor import depth_from_phase_change, metres_per_radian, phasor
+from ._stage import Float32Stage
 from .validity import all_valid, valid_mask
 
 __all__ = ["Destripe", "destripe"]
@@ -166,24 +167,18 @@ def _destripe(
     assert amplitude is not None
     amp = amplitude.to(work.dtype).reshape(b * c, 1, h, w)
     x = work.reshape(b * c, 1, h, w)
-    scale = K.SPEED_OF_LIGHT_AIR / (4.0 * math.pi * modulation_frequency_hz)  # metres per radian
+    scale = metres_per_radian(modulation_frequency_hz)
     if valid is not None:
         x0 = torch.where(valid, x, torch.zeros_like(x))
         amp = torch.where(valid, amp, torch.zeros_like(amp))
     else:
         x0 = x
-    phase = x0 * (1.0 / scale)
-    z = torch.cat([amp * torch.cos(phase), amp * torch.sin(phase)], 1)
+    z = phasor(x0, amp, scale)
     zc = z
     for d in dims[::-1]:
         if _usable(z):
             zc = zc - _along(zc, valid, d, width, clip, shrink, local_width)
-    re, im = z[:, :1], z[:, 1:]
-    re2, im2 = zc[:, :1], zc[:, 1:]
-    dphi = torch.atan2(im2 * re - re2 * im, re2 * re + im2 * im)
-    y = x + scale * dphi
-    if wrap:
-        y = torch.remainder(y, 2.0 * math.pi * scale)
+    y = depth_from_phase_change(x, z, zc, scale, wrap)
     return _keep(y, x, valid).reshape(b, c, h, w).to(out_dtype)
 
 
@@ -259,7 +254,7 @@ def destripe(
     )
 
 
-class Destripe(nn.Module):
+class Destripe(Float32Stage):
     r"""Broadband column / row offset removal, the module form of :func:`destripe`.
 
     Holds the settings (no learned or fixed coefficients: the offsets are estimated from each
@@ -321,7 +316,7 @@ class Destripe(nn.Module):
             s += f", modulation_frequency_hz={self.modulation_frequency_hz:g}, wrap={self.wrap}"
         return s
 
-    def forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
+    def _forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
         check_image(depth, "depth")
         if amplitude is not None:
             check_image(amplitude, "amplitude")

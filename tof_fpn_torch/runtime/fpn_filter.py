@@ -21,6 +21,7 @@ import math
 import torch
 from torch import nn
 from torch.nn import functional as F
+from torch.nn.utils import parametrize
 
 from ._checks import check_image, check_taps, normalize_dims
 from .fir import BORDER_MODES, fir_last, fir_operators
@@ -107,7 +108,7 @@ def _fill_sparse(
     if bool(far.any()):  # a gap wider than the window: the line mean
         means = _line_means(z, v, d).expand_as(x).reshape(-1)
         value = torch.where(far, means[inv], value)
-    return z.view(-1).index_copy_(0, inv, value).view(x.shape)
+    return z.view(-1).index_copy_(0, inv, value.to(z.dtype)).view(x.shape)
 
 
 def _fpn_filter(
@@ -296,17 +297,25 @@ class FPNFilter(nn.Module):
             self._build_operators()
 
     @torch.jit.unused
+    def _taps_version(self) -> int:
+        """The version counter of the tensor the taps are trained as (the taps, or under a
+        parametrisation, its ``original``): a host integer, no device sync."""
+        if parametrize.is_parametrized(self, "taps"):
+            return self.parametrizations["taps"].original._version
+        return self.taps._version
+
+    @torch.jit.unused
     def _build_operators(self) -> None:
         with torch.inference_mode(False):
-            for i, op in enumerate(fir_operators(self.taps, self.border)):
-                self.register_buffer(f"_taps_op{i}", op.to(self.taps.device), persistent=False)
-        self._ops_version = self.taps._version
+            taps = self.taps.detach()
+            for i, op in enumerate(fir_operators(taps, self.border)):
+                self.register_buffer(f"_taps_op{i}", op.to(taps.device), persistent=False)
+        self._ops_version = self._taps_version()
 
     @torch.jit.unused
     def _refresh_operators(self) -> None:
-        """Rebuild the matrices when the taps changed in place (optimiser step, load_state_dict):
-        a tensor's version counter is a host integer, so this costs no device sync."""
-        if self._ops_version != self.taps._version:
+        """Rebuild the matrices when the taps changed in place (optimiser step, load_state_dict)."""
+        if self._ops_version != self._taps_version():
             self._build_operators()
 
     @torch.jit.unused
@@ -335,6 +344,19 @@ class FPNFilter(nn.Module):
         )
 
     def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        if not torch.jit.is_scripting():
+            if torch.is_autocast_enabled(x.device.type):
+                return self._full_precision(x, mask)
+        return self._forward(x, mask)
+
+    @torch.jit.unused
+    def _full_precision(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`_forward` with autocast off (float32 work, the input's dtype out; see
+        :meth:`FPNSuppression._full_precision`)."""
+        with torch.autocast(x.device.type, enabled=False):
+            return self._forward(x, mask)
+
+    def _forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         check_image(x, "x")
         if mask is not None and mask.shape != x.shape:
             raise ValueError(

@@ -33,7 +33,7 @@ import torch
 from torch import nn
 
 from .. import constants as K
-from ._checks import check_image, check_same_shape
+from ._checks import check_fusion_inputs
 from .validity import valid_mask
 
 __all__ = ["AmplitudeFusion", "amplitude_fusion", "amplitude_weight"]
@@ -95,10 +95,7 @@ def amplitude_fusion(
         >>> amplitude_fusion(d + 1, d, torch.tensor([[[[0.0, 210.0, float("nan")]]]]))
         tensor([[[[3.0000, 2.6000, 2.0000]]]])
     """
-    check_image(depth, "depth", 1)
-    check_image(amplitude, "amplitude", 1)
-    check_same_shape(filtered, depth, "filtered", "depth")
-    check_same_shape(amplitude, depth, "amplitude", "depth")
+    check_fusion_inputs(filtered, depth, amplitude)
     _check_params(low, high, floor)
     return _fuse(filtered, depth, amplitude, low, high, floor)
 
@@ -142,8 +139,5 @@ class AmplitudeFusion(nn.Module):
     def forward(
         self, filtered: torch.Tensor, depth: torch.Tensor, amplitude: torch.Tensor
     ) -> torch.Tensor:
-        check_image(depth, "depth", 1)
-        check_image(amplitude, "amplitude", 1)
-        check_same_shape(filtered, depth, "filtered", "depth")
-        check_same_shape(amplitude, depth, "amplitude", "depth")
+        check_fusion_inputs(filtered, depth, amplitude)
         return _fuse(filtered, depth, amplitude, self.low, self.high, self.floor)

@@ -27,9 +27,11 @@ from torch import nn
 
 from .. import constants as K
 from ._checks import check_image, check_same_shape
+from ._stage import Float32Stage
 from .fpn_filter import FPNFilter, _tracing
-from .fusion import AmplitudeFusion, _fuse
+from .fusion import AmplitudeFusion
 from .gate import stripe_gate
+from .trainable import TrainableFusion
 from .validity import all_valid, valid_mask
 
 __all__ = ["FPNSuppression"]
@@ -42,7 +44,7 @@ def _noise_gain(taps: torch.Tensor) -> float:
     return float((d * d).sum())
 
 
-class FPNSuppression(nn.Module):
+class FPNSuppression(Float32Stage):
     r"""Fixed-pattern-noise suppression of ToF depth (see the module docstring).
 
     Args:
@@ -81,9 +83,10 @@ class FPNSuppression(nn.Module):
         super().__init__()
         if filter is not None and not isinstance(filter, FPNFilter):
             raise ValueError(f"filter must be an FPNFilter or None, got {type(filter).__name__}")
-        if fusion is not None and not isinstance(fusion, AmplitudeFusion):
+        if fusion is not None and not isinstance(fusion, (AmplitudeFusion, TrainableFusion)):
             raise ValueError(
-                f"fusion must be an AmplitudeFusion or None, got {type(fusion).__name__}"
+                "fusion must be an AmplitudeFusion, a TrainableFusion or None, got "
+                f"{type(fusion).__name__}"
             )
         if fusion is not None and filter is None:
             raise ValueError("fusion blends the notch filter's output: it needs a filter")
@@ -122,7 +125,7 @@ class FPNSuppression(nn.Module):
     def extra_repr(self) -> str:
         return f"gate={self.gate}, min_stripe={self.min_stripe}"
 
-    def forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
+    def _forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
         check_image(depth, "depth", 1)
         if amplitude is not None:
             check_image(amplitude, "amplitude", 1)
@@ -159,7 +162,7 @@ class FPNSuppression(nn.Module):
         out = filtered
         fusion = self.fusion
         if fusion is not None and amplitude is not None:
-            out = _fuse(filtered, depth, amplitude, fusion.low, fusion.high, fusion.floor)
+            out = fusion(filtered, depth, amplitude)
         if not self.gate:
             return out
         g = stripe_gate(

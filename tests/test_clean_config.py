@@ -1,0 +1,158 @@
+"""``tof-fpn clean`` configuration (TOML, flags) and the pipeline it builds, stage by stage."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from torch import nn
+
+from tof_fpn_torch import constants as K
+from tof_fpn_torch.clean import (
+    DENOISERS,
+    CleanConfig,
+    build_pipeline,
+    config_from_dict,
+    config_to_toml,
+    describe,
+    load_config,
+    register_denoiser,
+)
+from tof_fpn_torch.cli import build_parser
+from tof_fpn_torch.cli.clean import config_from_args
+from tof_fpn_torch.denoise import NonLocalMeans
+from tof_fpn_torch.runtime import Destripe
+
+
+def _frames(b=4, h=40, w=64, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.arange(w)
+    stripes = 0.01 * torch.cos(math.pi * x) + 0.004 * torch.randn(w, generator=g)
+    depth = 2.0 + stripes + 0.002 * torch.randn(b, 1, h, w, generator=g)
+    amp = 50 + 300 * torch.rand(b, 1, h, w, generator=g)
+    return depth, amp
+
+
+def test_toml_round_trip_and_version(tmp_path):
+    cfg = CleanConfig(
+        destripe="both", notch="design", fusion="manual", low=10.0, high=60.0, rho=0.2,
+        denoise="nlm", denoise_options={"h": 0.9, "kernel": "box"}, batch=3, height=4, width=5,
+    )  # fmt: skip
+    text = config_to_toml(cfg)
+    assert text.startswith('[tof_fpn_torch]\nversion = "')
+    p = tmp_path / "c.toml"
+    p.write_text(text)
+    assert load_config(p) == cfg
+    assert load_config(p).identity() == cfg.identity()
+
+
+def test_defaults_are_the_package_defaults():
+    cfg = CleanConfig()
+    assert (cfg.notch, cfg.fusion, cfg.destripe, cfg.denoise) == ("design", "camera", "off", "none")
+    assert cfg.order == K.DEFAULT_ORDER and cfg.batch == K.CLEAN_BATCH
+    assert CleanConfig(notch="off").fusion == "off"
+
+
+@pytest.mark.parametrize(
+    "data, needle",
+    [
+        ({"pipeline": {"notch": "fir"}}, "notch must be one of"),
+        ({"pipeline": {"colour": "x"}}, "unknown key 'colour' in \\[pipeline\\]"),
+        ({"extras": {}}, "unknown table 'extras'"),
+        ({"pipeline": {"notch": "off", "fusion": "camera"}}, "needs notch"),
+        ({"pipeline": {"fusion": "manual"}}, "needs low and high"),
+        ({"files": {"batch": 0}}, "batch must be an int >= 1"),
+        ({"notch": {"rho": -1.0}}, "rho must be > 0"),
+        ({"notch": {"gate": "yes"}}, "gate must be true or false"),
+    ],
+)
+def test_bad_config_names_key_value_allowed(data, needle):
+    with pytest.raises(ValueError, match=needle):
+        config_from_dict(data)
+
+
+def test_invalid_toml_is_one_clear_error(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("[pipeline\n")
+    with pytest.raises(ValueError, match="not valid TOML"):
+        load_config(p)
+
+
+def test_flags_override_the_file(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text('[pipeline]\ndenoise = "nlm"\n[denoise]\nh = 0.5\n[notch]\norder = 30\n')
+    args = build_parser().parse_args(
+        ["clean", "in", "out", "--config", str(p), "--order", "12", "--denoise-opt", "patch_size=5"]
+    )
+    cfg = config_from_args(args)
+    assert cfg.order == 12 and cfg.denoise == "nlm"
+    assert cfg.denoise_options == {"h": 0.5, "patch_size": 5}
+    args = build_parser().parse_args(["clean", "in", "out", "--notch", "off"])
+    assert config_from_args(args).fusion == "off"
+
+
+def test_each_stage_subset_builds_what_it_says():
+    d, a = _frames()
+    empty = build_pipeline(CleanConfig(notch="off"))
+    assert empty.fpn is None and empty.denoiser is None and torch.equal(empty(d, a), d)
+    only = build_pipeline(CleanConfig(notch="off", destripe="columns"))
+    assert only.fpn.filter is None and isinstance(only.fpn.destripe, Destripe)
+    full = build_pipeline(CleanConfig(destripe="rows", denoise="nlm"))
+    info = describe(full)
+    assert info["notch"]["order"] == K.DEFAULT_ORDER and info["fusion"]["low"] == K.FUSION_LOW
+    assert isinstance(full.denoiser, NonLocalMeans) and info["destripe"].startswith("dim=(-2,)")
+    no_fusion = build_pipeline(CleanConfig(fusion="off", gate=False))
+    assert no_fusion.fpn.fusion is None and no_fusion.fpn.gate is False
+
+
+def test_data_stages_are_measured_on_the_calibration_frames():
+    d, a = _frames()
+    calls = []
+
+    def calib():
+        calls.append(1)
+        return d, a
+
+    p = build_pipeline(CleanConfig(notch="data", destripe="auto", fusion="data"), calib)
+    assert len(calls) == 1  # read once per build
+    assert any(abs(w - math.pi) < 0.05 for w in p.fpn.filter.notches)
+    assert p.fpn.fusion is not None and p.fpn.fusion.low != K.FUSION_LOW
+    g = torch.Generator().manual_seed(1)
+    offsets = (
+        2.0 + 0.004 * torch.randn(64, generator=g) + 0.002 * torch.randn(4, 1, 40, 64, generator=g)
+    )
+    for notch in ("off", "design"):  # random column offsets: broadband
+        auto = build_pipeline(CleanConfig(notch=notch, destripe="auto"), lambda: (offsets, a))
+        assert isinstance(auto.fpn.destripe, Destripe), notch
+    flat = build_pipeline(CleanConfig(notch="off", destripe="auto"), lambda: (d * 0 + 2.0, a))
+    assert flat.fpn is None  # nothing to remove: no stage
+    with pytest.raises(ValueError, match="no calibration frames"):
+        build_pipeline(CleanConfig(fusion="data"))
+
+
+def test_denoiser_registry_takes_new_names():
+    class Halve(nn.Module):
+        def __init__(self, factor: float = 0.5):
+            super().__init__()
+            self.factor = factor
+
+        def forward(self, depth, amplitude):
+            return depth * self.factor
+
+    register_denoiser("halve", Halve)
+    try:
+        p = build_pipeline(
+            CleanConfig(notch="off", denoise="halve", denoise_options={"factor": 2.0})
+        )
+        assert torch.equal(
+            p(torch.ones(1, 1, 2, 2), torch.ones(1, 1, 2, 2)), torch.full((1, 1, 2, 2), 2.0)
+        )
+        with pytest.raises(ValueError, match="unknown option.*'size'.*allowed.*factor"):
+            build_pipeline(CleanConfig(notch="off", denoise="halve", denoise_options={"size": 1}))
+    finally:
+        DENOISERS.pop("halve")
+    with pytest.raises(ValueError, match="denoise must be 'none' or one of"):
+        build_pipeline(CleanConfig(denoise="bm3d"))
+    with pytest.raises(ValueError, match="identifier"):
+        register_denoiser("none", Halve)

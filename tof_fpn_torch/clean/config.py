@@ -1,0 +1,240 @@
+"""The configuration of a ``tof-fpn clean`` run: which stages, their settings, the file options.
+
+A run is described by a :class:`CleanConfig`, read from a small TOML file (:func:`load_config`,
+Python's ``tomllib``), from command-line flags, or both (flags win). The resolved configuration is
+saved beside the output as ``clean.toml`` together with the package version
+(:func:`config_to_toml`); a saved file is itself a valid ``--config``. Format (every key optional,
+the defaults shown)::
+
+    [pipeline]
+    destripe = "off"      # broadband column / row offsets: off | columns | rows | both | auto
+    notch = "design"      # periodic stripes (FPNSuppression): off | design | data
+    fusion = "camera"     # eq. (11) amplitude fusion: off | camera | data | manual
+                          #   (default: camera with a notch stage, off without one)
+    denoise = "none"      # a denoiser of tof_fpn_torch.clean.DENOISERS (nlm) or none
+
+    [notch]
+    order = 20            # filter order
+    rho = 0.14            # transition half-width / pi (notch = data: chosen from the notches)
+    gate = true           # the per-frame stripe gate: stripe-free frames pass unchanged
+
+    [fusion]
+    camera = "camcube"    # profile whose thresholds (amplitude units) fusion = camera uses
+    low = 70.0            # fusion = manual: the thresholds, in the camera's amplitude units
+    high = 350.0
+
+    [calibration]
+    frames = 8            # frames (the first in file order) that the data-driven stages measure
+
+    [denoise]             # keyword arguments of the denoiser, e.g. for nlm:
+    patch_size = 7        #   patch_size, patch_distance, h, k, kernel
+
+    [files]
+    batch = 8             # files per group and frames per compute batch
+    depth_scale = 0.001   # metres per stored depth unit (default: mm for integer files, m for
+                          #   floating ones, an HDF5 dataset's scale_m attribute)
+    height = 424          # frame size of raw .bin / .raw files, pixels
+    width = 512
+
+``auto`` / ``data`` stages are measured on the calibration frames when the run starts
+(:mod:`tof_fpn_torch.build`: ``broadband_from_data``, ``suppression_from_data``,
+``fusion_from_data``); ``[tof_fpn_torch]`` (the version a saved file records) is accepted and not
+used.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the same parser as a package
+    import tomli as tomllib
+
+from .. import __version__
+from .. import constants as K
+
+__all__ = [
+    "CHOICES",
+    "CleanConfig",
+    "config_from_dict",
+    "config_to_toml",
+    "load_config",
+]
+
+#: the allowed values of the ``[pipeline]`` keys (``denoise``: ``none`` or a registered name)
+CHOICES: dict[str, tuple[str, ...]] = {
+    "destripe": ("off", "columns", "rows", "both", "auto"),
+    "notch": ("off", "design", "data"),
+    "fusion": ("off", "camera", "data", "manual"),
+}
+#: TOML table -> {key: CleanConfig field}
+_TABLES: dict[str, dict[str, str]] = {
+    "pipeline": {k: k for k in ("destripe", "notch", "fusion", "denoise")},
+    "notch": {"order": "order", "rho": "rho", "gate": "gate"},
+    "fusion": {"camera": "camera", "low": "low", "high": "high"},
+    "calibration": {"frames": "calibration_frames"},
+    "files": {k: k for k in ("batch", "depth_scale", "height", "width")},
+}
+
+
+@dataclass
+class CleanConfig:
+    """What a ``tof-fpn clean`` run does (the TOML keys: module docstring).
+
+    Attributes:
+        destripe, notch, fusion: stage choices (:data:`CHOICES`); ``fusion=None`` resolves to
+            ``"camera"`` with a notch stage and ``"off"`` without.
+        denoise: ``"none"`` or a name of :data:`tof_fpn_torch.clean.DENOISERS`.
+        order, rho, gate: the notch filter (``rho=None``: 0.14 for ``design``, from the notch
+            frequencies for ``data``).
+        camera, low, high: fusion thresholds, in the camera's amplitude units.
+        calibration_frames: frames measured by ``auto`` / ``data`` stages.
+        denoise_options: keyword arguments of the denoiser.
+        batch: files per group and frames per compute batch (fixes the batches, so that a
+            resumed or a Ray run computes every frame in the same batch as an uninterrupted one).
+        depth_scale: metres per stored depth unit, or None (file default).
+        height, width: pixels of raw ``.bin`` / ``.raw`` frames.
+    """
+
+    destripe: str = "off"
+    notch: str = "design"
+    fusion: str | None = None
+    denoise: str = "none"
+    order: int = K.DEFAULT_ORDER
+    rho: float | None = None
+    gate: bool = True
+    camera: str = "camcube"
+    low: float | None = None
+    high: float | None = None
+    calibration_frames: int = K.CLEAN_CALIBRATION_FRAMES
+    denoise_options: dict = field(default_factory=dict)
+    batch: int = K.CLEAN_BATCH
+    depth_scale: float | None = None
+    height: int | None = None
+    width: int | None = None
+
+    def __post_init__(self) -> None:
+        for key, allowed in CHOICES.items():
+            v = getattr(self, key)
+            if key == "fusion" and v is None:
+                self.fusion = "off" if self.notch == "off" else "camera"
+            elif v not in allowed:
+                raise ValueError(f"{key} must be one of {list(allowed)}, got {v!r}")
+        if self.notch == "off" and self.fusion != "off":
+            raise ValueError(
+                f"fusion = {self.fusion!r} blends the notch filter's output: it needs notch = "
+                "'design' or 'data' (got notch = 'off')"
+            )
+        if not isinstance(self.denoise, str) or not self.denoise:
+            raise ValueError(f"denoise must be 'none' or a denoiser name, got {self.denoise!r}")
+        _int("order", self.order, 1)
+        _int("calibration_frames", self.calibration_frames, 1)
+        _int("batch", self.batch, 1)
+        for name in ("height", "width"):
+            if getattr(self, name) is not None:
+                _int(name, getattr(self, name), 1)
+        for name in ("rho", "low", "high", "depth_scale"):
+            v = getattr(self, name)
+            if v is not None:
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ValueError(f"{name} must be a finite number or absent, got {v!r}")
+                if v <= 0 and name != "low":
+                    raise ValueError(f"{name} must be > 0, got {v!r}")
+                setattr(self, name, float(v))
+        if self.fusion == "manual" and (self.low is None or self.high is None):
+            raise ValueError(
+                "fusion = 'manual' needs low and high (amplitude units of the camera), got "
+                f"low={self.low!r}, high={self.high!r}"
+            )
+        if not isinstance(self.gate, bool):
+            raise ValueError(f"gate must be true or false, got {self.gate!r}")
+        if not isinstance(self.denoise_options, dict):
+            raise ValueError(f"denoise_options must be a table, got {self.denoise_options!r}")
+
+    def replace(self, **changes) -> CleanConfig:
+        """A copy with ``changes`` (checked again); ``None`` values are ignored (flag not given)."""
+        changes = {k: v for k, v in changes.items() if v is not None}
+        if "notch" in changes and "fusion" not in changes and changes["notch"] == "off":
+            changes["fusion"] = "off"
+        return dataclasses.replace(self, **changes)
+
+    def identity(self) -> str:
+        """What decides the output bytes (everything here): two runs into one OUTPUT must agree."""
+        return config_to_toml(self, version=False)
+
+
+def _int(name: str, v, lo: int) -> None:
+    if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        raise ValueError(f"{name} must be an int >= {lo}, got {v!r}")
+
+
+def config_from_dict(data: dict, where: str = "config") -> CleanConfig:
+    """A :class:`CleanConfig` from parsed TOML; unknown tables or keys raise ``ValueError``."""
+    kwargs: dict = {}
+    for table, values in data.items():
+        if table == "tof_fpn_torch":
+            continue
+        if table == "denoise":
+            if not isinstance(values, dict):
+                raise ValueError(f"{where}: [denoise] must be a table, got {values!r}")
+            kwargs["denoise_options"] = dict(values)
+            continue
+        if table not in _TABLES or not isinstance(values, dict):
+            raise ValueError(
+                f"{where}: unknown table {table!r}; allowed: {sorted([*_TABLES, 'denoise'])}"
+            )
+        for key, value in values.items():
+            if key not in _TABLES[table]:
+                raise ValueError(
+                    f"{where}: unknown key {key!r} in [{table}]; allowed: {sorted(_TABLES[table])}"
+                )
+            kwargs[_TABLES[table][key]] = value
+    try:
+        return CleanConfig(**kwargs)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
+def load_config(path) -> CleanConfig:
+    """Read a TOML configuration file (format: module docstring)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"config file not found: {path}")
+    try:
+        data = tomllib.loads(p.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"config {path}: not valid TOML: {exc}") from None
+    return config_from_dict(data, f"config {path}")
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    raise ValueError(f"cannot write {v!r} ({type(v).__name__}) to TOML")
+
+
+def config_to_toml(config: CleanConfig, version: bool = True) -> str:
+    """The configuration as TOML (absent values left out), headed by ``[tof_fpn_torch] version``
+    when ``version``; :func:`load_config` reads it back to an equal :class:`CleanConfig`."""
+    lines = []
+    if version:
+        lines += ["[tof_fpn_torch]", f"version = {_toml_value(__version__)}", ""]
+    for table, keys in _TABLES.items():
+        lines.append(f"[{table}]")
+        for key, name in keys.items():
+            v = getattr(config, name)
+            if v is not None:
+                lines.append(f"{key} = {_toml_value(v)}")
+        lines.append("")
+    lines.append("[denoise]")
+    for key in sorted(config.denoise_options):
+        lines.append(f"{key} = {_toml_value(config.denoise_options[key])}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,292 @@
+""":func:`clean`: a whole ``tof-fpn clean`` run, engine-independent (safety, resume, manifest).
+
+1. Refuse an OUTPUT that would overwrite INPUT or someone else's files (:func:`~.plan.check_paths`).
+2. Plan the jobs (:func:`~.plan.plan_jobs`), build the pipeline (measuring data-driven stages on
+   the first frames), all before anything is written.
+3. Make OUTPUT, save the configuration as ``clean.toml`` (or, resuming, refuse a different one),
+   read the manifest: files finished by an earlier run are skipped; temporary files a killed run
+   left are removed.
+4. Run the engine (local or Ray) over the groups with unfinished files; append each file's record
+   to the manifest as its outputs land; show a progress bar (files/s, ETA).
+5. SIGTERM / SIGINT: stop taking new groups, finish the ones in flight, record them, remove
+   temporary files, write the ``end`` record; :attr:`CleanReport.status` is ``128 + signal``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import torch
+from tqdm import tqdm
+
+from .. import __version__
+from .config import CleanConfig, config_to_toml, load_config
+from .manifest import Manifest, finished, now, read_manifest
+from .pipeline import build_pipeline, describe
+from .plan import (
+    MANIFEST,
+    SAVED_CONFIG,
+    TMP_MARK,
+    check_paths,
+    groups_of,
+    plan_jobs,
+    remove_stale_temporaries,
+)
+from .work import load_group
+
+__all__ = ["ENGINES", "CleanReport", "clean", "resolve_device"]
+
+ENGINES = ("local", "ray")
+
+
+@dataclass
+class CleanReport:
+    """What a run did. ``status``: 0, 1 when some files failed, ``128 + signal`` when stopped."""
+
+    output: str
+    jobs: int = 0
+    already_done: int = 0
+    done: int = 0
+    failed: int = 0
+    frames: int = 0
+    seconds: float = 0.0
+    interrupted: int | None = None
+    steps: dict = field(default_factory=lambda: {"read": 0.0, "compute": 0.0, "write": 0.0})
+    failures: list = field(default_factory=list)
+    created: bool = False
+
+    @property
+    def status(self) -> int:
+        if self.interrupted is not None:
+            return 128 + self.interrupted
+        return 1 if self.failed else 0
+
+    def summary(self) -> str:
+        rate = self.frames / self.seconds if self.seconds > 0 else 0.0
+        s = (
+            f"cleaned {self.done} file(s) ({self.frames} frames) in {self.seconds:.1f} s, "
+            f"{rate:.1f} frames/s; {self.failed} failed; {self.already_done} already done"
+        )
+        return s + f"; output {self.output}, manifest {os.path.join(self.output, MANIFEST)}"
+
+
+def resolve_device(device: str | torch.device = "auto") -> torch.device:
+    """``"auto"``: the GPU when there is one, else the CPU; ``"cpu"``, ``"cuda"``, ``"cuda:N"``."""
+    if str(device) == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:N]', got {device!r}") from None
+    if dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda[:N]', got {device!r}")
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r}: no CUDA device here; use 'cpu' or 'auto'")
+    return dev
+
+
+def _calibration(jobs, config: CleanConfig):
+    """The first ``calibration_frames`` readable frames (of the first readable frame's shape)."""
+    depth, amplitude = [], []
+    for job in jobs:
+        if job.error is not None:
+            continue
+        (item,) = load_group([job], set(), config)
+        for d, a in item.tensors or []:
+            if depth and d.shape[-2:] != depth[0].shape[-2:]:
+                continue
+            depth.append(d)
+            amplitude.append(a)
+        if sum(x.shape[0] for x in depth) >= config.calibration_frames:
+            break
+    if not depth:
+        raise ValueError("no readable frame in INPUT to measure the data-driven stages on")
+    n = config.calibration_frames
+    return torch.cat(depth)[:n], torch.cat(amplitude)[:n]
+
+
+@contextlib.contextmanager
+def _signals():
+    """Catch SIGTERM / SIGINT into a flag (only in the main thread, where Python can); a second
+    signal ends the process at once (atomic writes keep the output consistent)."""
+    caught: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield caught
+        return
+    old = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+
+    def handler(signum, frame):
+        if caught:  # a second signal: stop now, the default way (resume still works)
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+        caught.append(signum)
+
+    for s in old:
+        signal.signal(s, handler)
+    try:
+        yield caught
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _saved_config(output: str, config: CleanConfig) -> None:
+    """Save ``clean.toml`` (atomically), or refuse one that differs (a resumed run)."""
+    path = os.path.join(output, SAVED_CONFIG)
+    if os.path.isfile(path):
+        if load_config(path).identity() != config.identity():
+            raise ValueError(
+                f"OUTPUT {output!r} was made with another configuration ({path}); resume with "
+                "that one (--config it) or choose a new OUTPUT"
+            )
+        return
+    tmp = os.path.join(output, f".{SAVED_CONFIG}{TMP_MARK}{os.getpid()}.tmp")
+    with open(tmp, "w") as fh:
+        fh.write(config_to_toml(config))
+    os.replace(tmp, path)
+
+
+def clean(
+    input_path: str,
+    output: str,
+    config: CleanConfig | None = None,
+    *,
+    workers: int = 0,
+    device: str | torch.device = "auto",
+    engine: str = "local",
+    progress: bool | None = False,
+    concurrency: int | None = None,
+    ray_address: str | None = None,
+    compute_in_workers: bool | None = None,
+) -> CleanReport:
+    """Clean every frame file of ``input_path`` (a file or a directory tree) into ``output``.
+
+    Args:
+        input_path: a frame file or a directory (walked recursively).
+        output: the output directory (made if missing): the same names, dtypes, units, shapes and
+            metadata as the inputs, with the depth cleaned; ``manifest.jsonl``, ``clean.toml``.
+        config: the stages (default :class:`CleanConfig`: the notch stage from the design).
+        workers: DataLoader worker processes (local engine), 0: none.
+        device: ``"auto"`` (GPU if any), ``"cpu"`` or ``"cuda[:N]"``.
+        engine: ``"local"`` or ``"ray"`` (:mod:`.ray_engine`).
+        progress: show a tqdm bar on stderr (None: when stderr is a terminal).
+        concurrency: Ray actors running the pipeline (default 1 with a GPU each, else 2).
+        ray_address: the Ray cluster (``ray.init(address=...)``); None: ``RAY_ADDRESS`` or a new
+            local instance.
+        compute_in_workers: local engine: compute in the workers (default: on the CPU only).
+
+    Returns:
+        a :class:`CleanReport` (``status`` is the exit status of ``tof-fpn clean``).
+
+    Raises:
+        ValueError: a bad argument or an OUTPUT that would overwrite INPUT (before anything is
+            written). Bad input files do not raise: they are failed records in the manifest.
+    """
+    config = CleanConfig() if config is None else config
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ValueError(f"workers must be an int >= 0, got {workers!r}")
+    dev = resolve_device(device)
+    check_paths(input_path, output)
+    jobs = plan_jobs(input_path, output)
+    pipeline = build_pipeline(config, lambda: _calibration(jobs, config)).to(dev)
+    report = CleanReport(output, jobs=len(jobs), created=not os.path.isdir(output))
+    os.makedirs(output, exist_ok=True)
+    _saved_config(output, config)
+    manifest_path = os.path.join(output, MANIFEST)
+    done = finished(read_manifest(manifest_path), jobs)
+    remove_stale_temporaries(output)
+    report.already_done = len(done)
+    groups = [(g, {j.name for j in g} - done) for g in groups_of(jobs, config.batch)]
+    groups = [(g, todo) for g, todo in groups if todo]
+    todo_count = sum(len(t) for _, t in groups)
+    token = f"{os.getpid()}-{secrets.token_hex(4)}"
+    run_id = token
+    t0 = time.perf_counter()
+    with Manifest(manifest_path) as man, _signals() as caught:
+        man.write(
+            {
+                "event": "start",
+                "run": run_id,
+                "version": __version__,
+                "engine": engine,
+                "workers": workers,
+                "device": str(dev),
+                "jobs": len(jobs),
+                "todo": todo_count,
+                "already_done": len(done),
+                "pipeline": describe(pipeline),
+                "time": now(),
+            }
+        )
+        for job in jobs:
+            if job.error is not None:
+                rec = {"file": job.name, "status": "failed", "error": job.error, "time": now()}
+                man.write(rec)
+                report.failed += 1
+                report.failures.append((job.name, job.error))
+        bar = tqdm(
+            total=todo_count,
+            unit="file",
+            desc="clean",
+            disable=None if progress is None else not progress,
+            file=sys.stderr,
+        )
+        kw = dict(token=token, root=output, stop=lambda: bool(caught))
+        if engine == "local":
+            from .local import run_local
+
+            stream = run_local(
+                groups, pipeline, config, workers=workers, device=dev,
+                compute_in_workers=compute_in_workers, **kw,
+            )  # fmt: skip
+        else:
+            from .ray_engine import run_ray
+
+            stream = run_ray(
+                groups, pipeline, config, device=dev, concurrency=concurrency,
+                address=ray_address, **kw,
+            )  # fmt: skip
+        try:
+            for records in stream:
+                for rec in records:
+                    man.write(rec)
+                    for step in report.steps:
+                        report.steps[step] += rec.get(f"{step}_s", 0.0)
+                    if rec["status"] == "done":
+                        report.done += 1
+                        report.frames += rec["frames"]
+                    else:
+                        report.failed += 1
+                        report.failures.append((rec["file"], rec["error"]))
+                bar.update(len(records))
+        finally:
+            stream.close()
+            bar.close()
+            for folder, _, files in os.walk(output):  # this run's temporaries (a stopped worker)
+                for f in files:
+                    if f.startswith(".") and f"{TMP_MARK}{token}" in f:
+                        with contextlib.suppress(FileNotFoundError):
+                            os.remove(os.path.join(folder, f))
+        report.seconds = time.perf_counter() - t0
+        report.interrupted = caught[0] if caught else None
+        man.write(
+            {
+                "event": "end",
+                "run": run_id,
+                "done": report.done,
+                "failed": report.failed,
+                "interrupted": report.interrupted,
+                "seconds": round(report.seconds, 3),
+                "time": now(),
+            }
+        )
+    return report

@@ -1,0 +1,188 @@
+"""The three steps of ``tof-fpn clean`` on one group of jobs, shared by the local and Ray engines:
+:func:`load_group` (decode), :func:`compute_group` (the torch pipeline, batched),
+:func:`write_group` (encode, write to temporary names, rename). Their inputs and outputs are plain
+picklable objects, so each step can run in another process (``DataLoader`` workers, Ray tasks and
+actors).
+
+Batches: the frames of a group (its files in order, each file's frames in order) are split by
+frame shape and cut into batches of ``batch`` frames. A group is fixed by the sorted file list
+(:func:`~.plan.groups_of`), so every frame meets the same batch in every run, resumed or not, on
+either engine (batched torch kernels differ in the last bits between batch sizes). A resumed run
+recomputes a group in full when any of its files is unfinished and writes only those.
+
+Failures are per file: a file that cannot be read, decoded, computed or written gets a
+``failed`` record with the reason and leaves nothing under its output names (temporary files are
+removed); the other files of the group go on.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from ..io import FormatError
+from ..io.stored import FrameSet, encode_depth, frame_set_tensors, read_frame_sets, write_like
+from .config import CleanConfig
+from .manifest import input_identity, now
+from .plan import Job, temporary
+
+__all__ = ["Loaded", "compute_group", "load_group", "reason", "write_group"]
+
+
+@dataclass
+class Loaded:
+    """One job after :func:`load_group` (and :func:`compute_group`)."""
+
+    job: Job
+    write: bool
+    sets: list[FrameSet] | None = None
+    tensors: list[tuple[torch.Tensor, torch.Tensor]] | None = None
+    cleaned: list[torch.Tensor] | None = None
+    identity: dict | None = None
+    error: str | None = None
+    seconds: dict = field(default_factory=lambda: {"read": 0.0, "compute": 0.0, "write": 0.0})
+
+
+def reason(exc: BaseException) -> str:
+    """One line: the message of our own errors, the type and message of anything else."""
+    if isinstance(exc, (FormatError, ValueError, FileNotFoundError)):
+        text = str(exc)
+    else:
+        text = f"{type(exc).__name__}: {exc}"
+    return " ".join(text.split())
+
+
+def load_group(jobs: list[Job], todo: set[str], config: CleanConfig) -> list[Loaded]:
+    """Read and decode every job of a group (``todo``: the names to write; the others are read
+    only to complete the group's batches)."""
+    out = []
+    for job in jobs:
+        item = Loaded(job, job.name in todo)
+        t0 = time.perf_counter()
+        try:
+            item.identity = input_identity(job.inputs)
+            item.sets = read_frame_sets(
+                job.depth,
+                job.amplitude,
+                height=config.height,
+                width=config.width,
+                depth_scale=config.depth_scale,
+            )
+            item.tensors = [
+                frame_set_tensors(fs, f"{job.name}{' [' + fs.key + ']' if fs.key else ''}")
+                for fs in item.sets
+            ]
+        except Exception as exc:  # noqa: BLE001 -- bad input: recorded, the run goes on
+            item.error, item.sets, item.tensors = reason(exc), None, None
+        item.seconds["read"] = time.perf_counter() - t0
+        out.append(item)
+    return out
+
+
+def compute_group(
+    pipeline: torch.nn.Module, group: list[Loaded], batch: int, device: torch.device | str = "cpu"
+) -> list[Loaded]:
+    """Run ``pipeline`` on the frames of the group's readable jobs, ``batch`` frames at a time
+    per frame shape (module docstring); fills ``cleaned`` (CPU tensors) and the compute time."""
+    device = torch.device(device)
+    slots = []  # (shape, item, set index, frame index)
+    for item in group:
+        if item.error is not None:
+            continue
+        item.cleaned = [torch.empty(0)] * len(item.tensors)
+        for s, (depth, _) in enumerate(item.tensors):
+            slots += [(tuple(depth.shape[-2:]), item, s, f) for f in range(depth.shape[0])]
+    shapes = list(dict.fromkeys(k for k, *_ in slots))
+    parts: dict[tuple[int, int], list[torch.Tensor]] = {}
+    for shape in shapes:
+        same = [x for x in slots if x[0] == shape]
+        for b0 in range(0, len(same), batch):
+            chunk = same[b0 : b0 + batch]
+            t0 = time.perf_counter()
+            try:
+                d = torch.cat([it.tensors[s][0][f : f + 1] for _, it, s, f in chunk]).to(device)
+                a = torch.cat([it.tensors[s][1][f : f + 1] for _, it, s, f in chunk]).to(device)
+                y = pipeline(d, a).cpu()
+            except Exception as exc:  # noqa: BLE001 -- recorded for the batch's files
+                for _, it, _, _ in chunk:
+                    it.error = f"compute failed: {reason(exc)}"
+                continue
+            share = (time.perf_counter() - t0) / len(chunk)
+            for i, (_, it, s, f) in enumerate(chunk):
+                parts.setdefault((id(it), s), []).append((f, y[i : i + 1]))
+                it.seconds["compute"] += share
+    for item in group:
+        if item.error is None and item.cleaned is not None:
+            for s in range(len(item.cleaned)):
+                frames = sorted(parts.get((id(item), s), []), key=lambda p: p[0])
+                item.cleaned[s] = torch.cat([t for _, t in frames])
+        if item.error is not None:
+            item.cleaned = None
+        item.tensors = None  # not needed any more (and not to be pickled back)
+    return group
+
+
+def _write_job(item: Loaded, token: str) -> dict:
+    job = item.job
+    temps: list[tuple[str, str]] = []
+    try:
+        encoded, clamped = {}, 0
+        for fs, y in zip(item.sets, item.cleaned, strict=True):
+            encoded[fs.key], n = encode_depth(fs, y)
+            clamped += n
+        for dst in job.outputs:
+            os.makedirs(os.path.dirname(dst) or ".", exist_ok=True)
+        tmp = temporary(job.out_depth, token)
+        temps.append((tmp, job.out_depth))
+        write_like(job.depth, tmp, encoded, item.sets)
+        if job.amplitude is not None:  # the amplitude is not changed: copied byte for byte
+            tmp = temporary(job.out_amplitude, token)
+            temps.append((tmp, job.out_amplitude))
+            shutil.copyfile(job.amplitude, tmp)
+        if input_identity(job.inputs) != item.identity:
+            raise ValueError("the input changed while it was being cleaned; run again")
+        for tmp, dst in temps:
+            os.replace(tmp, dst)
+    except Exception as exc:  # noqa: BLE001 -- recorded; nothing left under the output names
+        for tmp, _ in temps:
+            try:
+                os.remove(tmp)
+            except FileNotFoundError:
+                pass
+        return {"error": f"write failed: {reason(exc)}"}
+    return {"clamped": clamped}
+
+
+def write_group(group: list[Loaded], token: str, root: str) -> list[dict]:
+    """Encode and write the group's jobs to write (temporary name, then ``os.replace``); returns
+    their manifest records (``root``: OUTPUT, to which the recorded output paths are relative)."""
+    records = []
+    for item in group:
+        if not item.write:
+            continue
+        job = item.job
+        rec = {"file": job.name, "time": None}
+        if item.error is None:
+            t0 = time.perf_counter()
+            res = _write_job(item, token)
+            item.seconds["write"] = time.perf_counter() - t0
+            item.error = res.get("error")
+            rec["clamped"] = res.get("clamped", 0)
+        if item.error is None:
+            rec.update(
+                status="done",
+                outputs=[os.path.relpath(p, root).replace(os.sep, "/") for p in job.outputs],
+                frames=sum(int(fs.depth.shape[0]) for fs in item.sets),
+                input=item.identity,
+            )
+        else:
+            rec.update(status="failed", error=item.error)
+        rec.update({f"{k}_s": round(v, 6) for k, v in item.seconds.items()})
+        rec["time"] = now()
+        records.append(rec)
+        item.sets = item.cleaned = None
+    return records

@@ -1,0 +1,154 @@
+r"""Train a compact depth denoiser behind four front ends on simulated frames, and evaluate it.
+
+Front ends (:data:`FRONT_ENDS`):
+
+* ``none``: the network alone;
+* ``fixed``: the FPN stage as designed (``suppression_from_design``: unit-DC notch, fusion, gate);
+* ``trainable``: the same stage trained jointly with the network, its notch zeros held
+  (``trainable_suppression``);
+* ``fixed+nlm``: the fixed stage, then amplitude-aware NLM (``sigma = k / A``), then the network.
+
+The fusion thresholds of the stage are measured once on a calibration batch of the simulator's own
+frames (:func:`~tof_fpn_torch.build.fusion_from_data`): the simulator's amplitudes are DN, not
+CamCube units. Everything is seeded; see ``scripts/train_front_ends.py`` for the experiment.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+from torch.utils.data import DataLoader
+
+from ..analysis.metrics import psnr
+from ..build import fusion_from_data, suppression_from_design, trainable_suppression
+from ..denoise import NonLocalMeans
+from .dataset import SimulatedFrames, draw_sample
+from .models import DepthModel, DnCNN
+
+__all__ = ["FRONT_ENDS", "Settings", "evaluate", "fusion_thresholds", "make_model", "train"]
+
+FRONT_ENDS: tuple[str, ...] = ("none", "fixed", "trainable", "fixed+nlm")
+#: seed of the calibration batch and of the held-out evaluation stream (never trained on)
+CALIBRATION_SEED = 777
+#: the stripe gate of the fixed front ends (see the module docstring)
+GATE = False
+#: search half-width of the NLM in ``fixed+nlm`` (7 x 7 windows: NLM is most of that run's time)
+NLM_SEARCH = 3
+EVALUATION_SEED = 10_000
+
+
+@dataclass(frozen=True)
+class Settings:
+    """One training run: ``steps`` Adam steps (learning rate ``lr``, cosine decay to 0) of
+    ``batch`` frames of ``size``, drawn by ``workers`` DataLoader workers; the network is
+    ``DnCNN(layers, channels)``."""
+
+    steps: int = 240
+    batch: int = 8
+    size: tuple[int, int] = (48, 48)
+    lr: float = 1e-3
+    workers: int = 0
+    layers: int = 6
+    channels: int = 24
+
+
+class _StageThenDenoiser(nn.Module):
+    """``denoiser(stage(depth, amplitude), amplitude)``."""
+
+    def __init__(self, stage: nn.Module, denoiser: nn.Module) -> None:
+        super().__init__()
+        self.stage = stage
+        self.denoiser = denoiser
+
+    def forward(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor:
+        return self.denoiser(self.stage(depth, amplitude), amplitude)
+
+
+def fusion_thresholds(size: tuple[int, int] = (96, 96), frames: int = 16) -> tuple[float, float]:
+    """Fusion ``(low, high)`` measured on ``frames`` calibration frames of the simulator."""
+    items = [draw_sample(CALIBRATION_SEED, i, size) for i in range(frames)]
+    depth = torch.stack([it[0] for it in items])
+    amp = torch.stack([it[1] for it in items])
+    fusion = fusion_from_data(depth, amp)
+    return fusion.low, fusion.high
+
+
+def make_model(front: str, thresholds: tuple[float, float], settings: Settings) -> DepthModel:
+    """The network behind the named front end."""
+    if front not in FRONT_ENDS:
+        raise ValueError(f"front must be one of {FRONT_ENDS}, got {front!r}")
+    low, high = thresholds
+    net = DnCNN(settings.layers, settings.channels)
+    if front == "none":
+        return DepthModel(net)
+    if front == "trainable":
+        return DepthModel(net, trainable_suppression(low=low, high=high, gate=False))
+    stage = suppression_from_design(low=low, high=high, gate=GATE)
+    if front == "fixed":
+        return DepthModel(net, stage)
+    return DepthModel(
+        net, _StageThenDenoiser(stage, NonLocalMeans(patch_size=5, patch_distance=NLM_SEARCH))
+    )
+
+
+@dataclass
+class Trained:
+    """A trained model and its curve (loss per step, seconds)."""
+
+    model: DepthModel
+    losses: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def train(front: str, seed: int, settings: Settings, thresholds: tuple[float, float]) -> Trained:
+    """Train the named front end + network from scratch on the stream ``seed``."""
+    torch.manual_seed(seed)
+    model = make_model(front, thresholds, settings)
+    # the front end starts from a design: it trains 10x slower than the network starting from 0
+    front_params = [] if model.front_end is None else list(model.front_end.parameters())
+    groups = [{"params": list(model.network.parameters()), "lr": settings.lr}]
+    if front_params:
+        groups.append({"params": front_params, "lr": 0.1 * settings.lr})
+    opt = torch.optim.Adam(groups)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(1, settings.steps))
+    data = SimulatedFrames(settings.size, seed=seed, length=settings.steps * settings.batch)
+    loader = DataLoader(data, batch_size=settings.batch, num_workers=settings.workers)
+    out = Trained(model)
+    t0 = time.perf_counter()
+    model.train()
+    for depth, amp, target, valid in loader:
+        pred = model(depth, amp)
+        err = torch.where(valid, pred - target, torch.zeros_like(pred))
+        loss = err.pow(2).sum() / valid.sum().clamp_min(1)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        schedule.step()
+        out.losses.append(float(loss.detach()))
+    out.seconds = time.perf_counter() - t0
+    model.eval()
+    return out
+
+
+def evaluate(model: nn.Module, frames: int, size: tuple[int, int], low_threshold: float) -> dict:
+    """PSNR (eq. 9) of the model on ``frames`` held-out simulated frames, over all valid pixels
+    and over the low-sensing ones (amplitude below ``low_threshold``, the fusion's ``high``:
+    relative depth noise above 0.8 %), with the input's for reference (means of dB)."""
+    rows = {"model": [], "input": [], "model_low": [], "input_low": [], "low_share": []}
+    with torch.no_grad():
+        for i in range(frames):
+            depth, amp, target, valid, _ = draw_sample(EVALUATION_SEED, i, size)
+            depth, amp, target, valid = (t.unsqueeze(0) for t in (depth, amp, target, valid))
+            pred = model(depth, amp)
+            low = valid & (amp < low_threshold)
+            rows["model"].append(float(psnr(pred, target, valid)))
+            rows["input"].append(float(psnr(depth, target, valid)))
+            if bool(low.any()):
+                rows["model_low"].append(float(psnr(pred, target, low)))
+                rows["input_low"].append(float(psnr(depth, target, low)))
+            rows["low_share"].append(float(low.sum() / valid.sum().clamp_min(1)))
+    return {k: sum(v) / len(v) if v else math.nan for k, v in rows.items()}
