@@ -30,14 +30,15 @@ sys.path.insert(0, str(HERE.parent))
 
 from concealed_generator import EFFECTS, generate  # noqa: E402
 
-#: detection magnitude of each effect, in the generator's unit (see concealed_generator.py)
+#: detection magnitude of each effect, in the generator's unit (see concealed_generator.py); set
+#: from one pilot recording per effect at 2x and 8x of a first guess (docs/diagnosis.md)
 DETECTION = {
     "cyclic_error": 0.02,  # share of square wave in the light (truth reported in mm p-p)
-    "amplitude_bias": 1.0,  # beta, mm per e-fold
-    "fpn_pattern": 0.5,  # rms of the column / row delays, mm
+    "amplitude_bias": 4.0,  # beta, mm per e-fold
+    "fpn_pattern": 2.0,  # rms of the column / row delays, mm
     "vignetting": 0.02,  # light lost at the far corner (fraction)
     "temporal_drift": 1.0,  # drift over the recording, mm
-    "noise_floor": 1.0,  # clock jitter, mm rms
+    "noise_floor": 4.0,  # clock jitter, mm rms
     "pixel_gain": 0.01,  # rms of the quantum efficiency (fraction)
     "impulsive_pixels": 0.001,  # share of random-telegraph pixels
     "saturation": 0.01,  # share of pixels clipped
@@ -121,8 +122,15 @@ def fitted_value(effect: str, params: dict, values: dict, frames: int):
     return None
 
 
+def set_size(h: int, w: int, t: int) -> None:
+    global H, W, T
+    H, W, T = h, w, t
+
+
 def one(job: dict) -> dict:
     torch.set_num_threads(1)
+    if "size" in job:
+        set_size(*job["size"])
     from tof_fpn_torch.diagnosis import diagnose
     from tof_fpn_torch.io import Recording
 
@@ -160,11 +168,27 @@ def jobs(effects, factors, n_seeds: int, nulls: int) -> list[dict]:
         for fi, fac in enumerate(factors):
             for s in range(n_seeds):
                 kind = SCENES[(s + fi) % len(SCENES)]
-                out.append({"effect": e, "factor": fac, "magnitude": DETECTION[e] * fac,
-                            "scene": kind, "scene_seed": 100 + s, "seed": 1000 * fi + s})
+                out.append(
+                    {
+                        "effect": e,
+                        "factor": fac,
+                        "magnitude": DETECTION[e] * fac,
+                        "scene": kind,
+                        "scene_seed": 100 + s,
+                        "seed": 1000 * fi + s,
+                    }
+                )
     for s in range(nulls):
-        out.append({"effect": None, "factor": 0.0, "magnitude": 0.0,
-                    "scene": SCENES[s % len(SCENES)], "scene_seed": 200 + s, "seed": 5000 + s})
+        out.append(
+            {
+                "effect": None,
+                "factor": 0.0,
+                "magnitude": 0.0,
+                "scene": SCENES[s % len(SCENES)],
+                "scene_seed": 200 + s,
+                "seed": 5000 + s,
+            }
+        )
     return out
 
 
@@ -175,10 +199,16 @@ def summary(results: list[dict]) -> dict:
         if not rs:
             continue
         above = [r for r in rs if r["factor"] >= 1.0]
-        rec = [abs(r["fitted"] - r["truth"]) / abs(r["truth"]) for r in above
-               if r.get("fitted") is not None and r.get("truth")]
-        gain = [r["fit"]["before"]["heldout_nll_per_observation"]
-                - r["fit"]["after"]["heldout_nll_per_observation"] for r in above]
+        rec = [
+            abs(r["fitted"] - r["truth"]) / abs(r["truth"])
+            for r in above
+            if r.get("fitted") is not None and r.get("truth")
+        ]
+        gain = [
+            r["fit"]["before"]["heldout_nll_per_observation"]
+            - r["fit"]["after"]["heldout_nll_per_observation"]
+            for r in above
+        ]
         by_factor = {}
         for fac in FACTORS:
             sel = [r for r in rs if r["factor"] == fac]
@@ -204,8 +234,12 @@ def summary(results: list[dict]) -> dict:
     }
     secs = [r["seconds"] for r in results]
     cpu = [r["cpu_seconds"] for r in results]
-    out["seconds"] = {"median": float(np.median(secs)), "max": float(np.max(secs)),
-                      "cpu_median": float(np.median(cpu)), "cpu_max": float(np.max(cpu))}
+    out["seconds"] = {
+        "median": float(np.median(secs)),
+        "max": float(np.max(secs)),
+        "cpu_median": float(np.median(cpu)),
+        "cpu_max": float(np.max(cpu)),
+    }
     return out
 
 
@@ -216,29 +250,47 @@ def main() -> None:
     ap.add_argument("--nulls", type=int, default=40)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--effects", nargs="*", default=list(EFFECTS))
+    ap.add_argument("--factors", nargs="*", type=float, default=list(FACTORS))
+    ap.add_argument("--size", nargs=3, type=int, default=[H, W, T], metavar=("H", "W", "T"))
     ap.add_argument("--out", default=str(HERE.parent / "docs/figures/diagnosis_bench.json"))
     a = ap.parse_args()
+    set_size(*a.size)
     if a.pilot:
         eff = None if a.pilot[0] == "none" else a.pilot[0]
         mags = [float(x) for x in a.pilot[1:]] or [0.0]
-        js = [{"effect": eff, "factor": 1.0, "magnitude": m, "scene": SCENES[i % 3],
-               "scene_seed": 100 + i, "seed": i} for i, m in enumerate(mags)]
+        js = [
+            {
+                "effect": eff,
+                "factor": 1.0,
+                "magnitude": m,
+                "scene": SCENES[i % 3],
+                "scene_seed": 100 + i,
+                "seed": i,
+            }
+            for i, m in enumerate(mags)
+        ]
     else:
-        js = jobs(a.effects, FACTORS, a.seeds, a.nulls)
+        js = jobs(a.effects, a.factors, a.seeds, a.nulls)
+    for j in js:
+        j["size"] = list(a.size)
     t0 = time.time()
     results = []
     with ProcessPoolExecutor(max_workers=a.workers) as ex:
         for r in ex.map(one, js):
             results.append(r)
-            print(f"{r['effect']!s:17} x{r['factor']:<4} {r['scene']:9} -> {r['top1']:17} "
-                  f"truth {r.get('truth')!s:.8} fitted {r.get('fitted')!s:.8} "
-                  f"{r['seconds']:.1f} s", flush=True)
+            print(
+                f"{r['effect']!s:17} x{r['factor']:<4} {r['scene']:9} -> {r['top1']:17} "
+                f"truth {r.get('truth')!s:.8} fitted {r.get('fitted')!s:.8} "
+                f"{r['seconds']:.1f} s",
+                flush=True,
+            )
     if a.pilot:
         return
     summ = summary(results)
     summ["wall_seconds"] = time.time() - t0
-    Path(a.out).write_text(json.dumps({"summary": summ, "results": results}, indent=1,
-                                      default=float) + "\n")
+    Path(a.out).write_text(
+        json.dumps({"summary": summ, "results": results}, indent=1, default=float) + "\n"
+    )
     print(json.dumps(summ, indent=1))
 
 

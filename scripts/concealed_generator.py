@@ -80,7 +80,7 @@ def _cyclic_truth(square_share: float, f: float, n: int = 4) -> float:
     corr = _correlation(square_share)
     m = corr.size
     phi = np.linspace(0, 2 * np.pi, 256, endpoint=False)
-    idx = (np.round((phi[:, None] + 2 * np.pi * np.arange(n)[None] / n) / (2 * np.pi) * m) % m)
+    idx = np.round((phi[:, None] + 2 * np.pi * np.arange(n)[None] / n) / (2 * np.pi) * m) % m
     q = corr[idx.astype(int)].T[None]  # (1, N, 256)
     d, _ = _decode(q.reshape(1, n, 1, 256), f)
     err = d[0, 0] - phi * C_AIR / (4 * np.pi * f)
@@ -89,9 +89,24 @@ def _cyclic_truth(square_share: float, f: float, n: int = 4) -> float:
     return float(err.max() - err.min())
 
 
-def generate(depth, reflectance, *, frames=24, seed=0, effect=None, magnitude=0.0,
-             frequency=20e6, n_phases=4, k_sig=3.0e4, bg=400.0, contrast=0.5, gain=25.0,
-             read_e=10.0, fpn=(20.0, 15.0), psi=0.8):
+def generate(
+    depth,
+    reflectance,
+    *,
+    frames=24,
+    seed=0,
+    effect=None,
+    magnitude=0.0,
+    frequency=20e6,
+    n_phases=4,
+    k_sig=3.0e4,
+    bg=400.0,
+    contrast=0.5,
+    gain=25.0,
+    read_e=10.0,
+    fpn=(20.0, 15.0),
+    psi=0.8,
+):
     """One recording. ``depth`` (m), ``reflectance`` (H, W) arrays. Returns ``(depth_frames,
     amplitude_frames, meta, truth)``: (T, H, W) float32 (NaN invalid), the recording meta dict
     and what was planted (``truth["effect"]`` is None for a null recording)."""
@@ -112,8 +127,11 @@ def generate(depth, reflectance, *, frames=24, seed=0, effect=None, magnitude=0.
     amb = bg * rho
     if effect == "vignetting":
         cx, cy = rng.uniform(-0.05, 0.05) * w, rng.uniform(-0.05, 0.05) * h
-        corner = max(math.hypot(x - cx, y - cy) for x in (-(w - 1) / 2, (w - 1) / 2)
-                     for y in (-(h - 1) / 2, (h - 1) / 2))
+        corner = max(
+            math.hypot(x - cx, y - cy)
+            for x in (-(w - 1) / 2, (w - 1) / 2)
+            for y in (-(h - 1) / 2, (h - 1) / 2)
+        )
         # cos^4(atan(r / fl)) = (1 + (r / fl)^2)^-2 = 1 - magnitude at the far corner
         fl = corner / math.sqrt((1 - magnitude) ** -0.5 - 1)
         yy, xx = np.mgrid[0:h, 0:w]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -104,6 +105,11 @@ def _stats(model, obs, ctx, replicates: int, seed: int) -> dict[str, Stat]:
 
 
 def _load(recording, scene):
+    if not isinstance(recording, (Recording, str, os.PathLike)):
+        raise ValueError(
+            "recording must be a tof_fpn_torch.io.Recording or the path of a recording .npz, "
+            f"got {type(recording).__name__}"
+        )
     if not isinstance(recording, Recording):
         recording = read_recording(recording)
     if scene is not None and not hasattr(scene, "depth"):
