@@ -9,6 +9,7 @@ improvement. Results: docs/figures/diagnosis_bench.json (and a table on stdout).
 
     python scripts/bench_diagnosis.py                    # full benchmark, 2 workers
     python scripts/bench_diagnosis.py --pilot EFFECT M1 M2 ...   # a few recordings, printed
+    python scripts/bench_diagnosis.py --speed            # 24 x 120 x 160 and 50 x 204 x 204 timed
 """
 
 from __future__ import annotations
@@ -243,6 +244,44 @@ def summary(results: list[dict]) -> dict:
     return out
 
 
+def speed(out_path: str, threads: int = 2) -> dict:
+    """One full diagnosis (default bootstrap, figures rendered) of a null recording of 24 frames
+    120 x 160 and one of 50 frames 204 x 204, ``threads`` torch threads; load average recorded
+    (the machine may be shared)."""
+    import os
+
+    from tof_fpn_torch.diagnosis import diagnose
+    from tof_fpn_torch.io import Recording
+    from tof_fpn_torch.sim import synthetic_scene
+
+    res = {"threads": threads, "cpu_count": os.cpu_count(), "runs": []}
+    for h, w, t in ((120, 160, 24), (204, 204, 50)):
+        sc = synthetic_scene(h, w, seed=7, depth_range=(0.5, 6.0))
+        d = sc.depth[0, 0].double().numpy()
+        r = sc.reflectance[0, 0].double().numpy()
+        depth, amp, meta, _ = generate(d, r, frames=t, seed=7)
+        rec = Recording(torch.from_numpy(depth), torch.from_numpy(amp), meta)
+        load0 = os.getloadavg()
+        t0, c0 = time.perf_counter(), time.process_time()
+        diag = diagnose(rec, sc, threads=threads)
+        files = diag.files(figures=True)
+        run = {
+            "frames": t,
+            "height": h,
+            "width": w,
+            "seconds": round(time.perf_counter() - t0, 2),
+            "cpu_seconds": round(time.process_time() - c0, 2),
+            "load_average_1_5_15_before": [round(x, 2) for x in load0],
+            "load_average_1_5_15_after": [round(x, 2) for x in os.getloadavg()],
+            "verdict": diag.report["verdict"],
+            "files": sorted(files),
+        }
+        print(json.dumps(run), flush=True)
+        res["runs"].append(run)
+    Path(out_path).write_text(json.dumps(res, indent=1) + "\n")
+    return res
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--pilot", nargs="+", default=None, metavar="EFFECT_OR_MAGNITUDE")
@@ -253,7 +292,11 @@ def main() -> None:
     ap.add_argument("--factors", nargs="*", type=float, default=list(FACTORS))
     ap.add_argument("--size", nargs=3, type=int, default=[H, W, T], metavar=("H", "W", "T"))
     ap.add_argument("--out", default=str(HERE.parent / "docs/figures/diagnosis_bench.json"))
+    ap.add_argument("--speed", action="store_true", help="only the two timed diagnoses")
     a = ap.parse_args()
+    if a.speed:
+        speed(str(HERE.parent / "docs/figures/diagnosis_speed.json"))
+        return
     set_size(*a.size)
     if a.pilot:
         eff = None if a.pilot[0] == "none" else a.pilot[0]

@@ -215,7 +215,9 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
     units = _PHOTONS_CACHE.get(key)
     if units is None:
         with torch.no_grad():
-            act = Photons(responsivity=1.0).mean_samples(replace(cam, ambient_irradiance=0.0), scene)
+            act = Photons(responsivity=1.0).mean_samples(
+                replace(cam, ambient_irradiance=0.0), scene
+            )
             amb = Photons(responsivity=1.0).mean_samples(
                 replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene
             )
