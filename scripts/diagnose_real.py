@@ -10,6 +10,7 @@
    frames, scene given).
 
     python scripts/diagnose_real.py            # writes docs/figures/diagnosis_real.json
+    python scripts/diagnose_real.py NAME ...   # only those cases (the others kept from the JSON)
 
 A missing capture is an error (the script stops and says where it looked).
 """
@@ -78,21 +79,25 @@ def adi() -> dict:
     return _summary(diag)
 
 
-def p0_column_profile(width: int = 160) -> np.ndarray:
-    """The P0 table's column structure in metres (``width`` central columns)."""
+#: modulation frequencies of the three P0 tables (libfreenect2's order)
+P0_FREQUENCIES = (80e6, 16e6, 120e6)
+
+
+def p0_column_profile(width: int = 160, table: int = 0) -> np.ndarray:
+    """The P0 table's column structure in metres (``width`` central columns) at its frequency."""
     from tof_fpn_torch import io as tio
 
-    t = tio.read_kinect_v2_p0(_path(P0))[0, 0].double().numpy()  # 80 MHz table, rad
+    t = tio.read_kinect_v2_p0(_path(P0))[table, 0].double().numpy()  # rad
     z = np.exp(1j * t)
     step = np.median(np.angle(z[:, 1:] * np.conj(z[:, :-1])), axis=0)
     col = np.concatenate([[0.0], np.cumsum(step)])
     hp = col - np.convolve(np.pad(col, 15, mode="edge"), np.ones(31) / 31, "valid")
     c0 = (hp.size - width) // 2
-    prof = hp[c0 : c0 + width] * C_AIR / (4 * math.pi * 80e6)
+    prof = hp[c0 : c0 + width] * C_AIR / (4 * math.pi * P0_FREQUENCIES[table])
     return prof - prof.mean()
 
 
-def kinect(seed: int = 3) -> dict:
+def kinect(seed: int = 3, table: int = 0) -> dict:
     from tof_fpn_torch.diagnosis import diagnose
     from tof_fpn_torch.io import Recording
     from tof_fpn_torch.sim import synthetic_scene
@@ -102,29 +107,41 @@ def kinect(seed: int = 3) -> dict:
     d = sc.depth[0, 0].double().numpy()
     r = sc.reflectance[0, 0].double().numpy()
     depth, amp, meta, _ = generate(d, r, frames=t, seed=seed)
-    prof = p0_column_profile(w)
+    prof = p0_column_profile(w, table)
     depth = depth + prof[None, None, :].astype(np.float32)
     rec = Recording(torch.from_numpy(depth), torch.from_numpy(amp), meta)
     diag = diagnose(rec, sc)
     out = _summary(diag)
+    out["p0_table_mhz"] = P0_FREQUENCIES[table] / 1e6
     out["planted_profile_rms_mm"] = float(prof.std() * 1e3)
     out["planted_profile_peak_to_peak_mm"] = float(np.ptp(prof) * 1e3)
     fitted = diag.model.profiles.get("columns")
     if fitted is not None:
         f = fitted.double().numpy()
-        out["profile_correlation"] = float(np.corrcoef(f - f.mean(), prof)[0, 1])
+        if f.std() > 0:
+            out["profile_correlation"] = float(np.corrcoef(f - f.mean(), prof)[0, 1])
     return out
 
 
 def main() -> None:
     torch.set_num_threads(1)
     res = {}
-    for name, fn in (("adi_wall", adi), ("kinect_v2_p0_columns", kinect)):
+    only = sys.argv[1:]
+    jobs = (
+        ("adi_wall", adi),
+        ("kinect_v2_p0_columns_80mhz", lambda: kinect(table=0)),
+        ("kinect_v2_p0_columns_16mhz", lambda: kinect(table=1)),
+    )
+    out = ROOT / "docs" / "figures" / "diagnosis_real.json"
+    if only and out.is_file():
+        res = json.loads(out.read_text())
+    for name, fn in jobs:
+        if only and name not in only:
+            continue
         t0 = time.perf_counter()
         res[name] = fn()
         res[name]["wall_seconds"] = time.perf_counter() - t0
         print(name, json.dumps(res[name]["verdict"]), json.dumps(res[name]["fit"]), flush=True)
-    out = ROOT / "docs" / "figures" / "diagnosis_real.json"
     out.write_text(json.dumps(res, indent=1, default=float) + "\n")
     print(f"wrote {out}")
 
