@@ -4,18 +4,21 @@ Small seeded recordings from the package's simulator with the baseline's physics
 2 pi / 3 and pi read-out FPN, shot and read noise, ADC), with or without one planted term:
 bad input gives one clear error line and writes nothing; ``report.json`` has the issue's
 shape; a planted cyclic error and a planted column-delay pattern are named first; a null
-recording gives ``none``; the refitted ``model.json`` loads back as ``--baseline``.
+recording gives ``none``; the refitted ``model.json`` loads back as ``--baseline``; the ADI
+wall capture (``../shared/data/real``; missing: the test fails) shows a broadband column pattern.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
 from tof_fpn_torch.diagnosis import diagnose, load_model
 from tof_fpn_torch.io import Recording, SceneData, write_recording, write_scene
@@ -191,3 +194,56 @@ def test_null_recording_gives_none():
     diag = diagnose(rec, scene, replicates=0)
     assert diag.report["verdict"] == ["none"], diag.report["effects"]
     assert diag.report["effects"] == []
+
+
+# --- real data -----------------------------------------------------------------------------------
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+ADI_WALL = ("adi_adtf3175/wall_depth_u16le_512x512.bin", "adi_adtf3175/wall_ir_u16le_512x512.bin")
+
+
+def _real(rel: str) -> Path:
+    path = REAL / rel
+    if not path.is_file():
+        pytest.fail(f"real capture missing: {path} (../shared/data/real beside the repository)")
+    return path
+
+
+def test_adi_wall_column_pattern_is_broadband_and_modelled():
+    """One frame of the ADI wall (a 128 x 160 crop of its centre), scene estimated: the column
+    pattern is found, its spectrum is broadband (not 2 pi / 3 / pi), and modelling it improves
+    the held-out fit (the whole frame: docs/diagnosis.md)."""
+    depth, ir = tio.read_adi_depth_ir(_real(ADI_WALL[0]), _real(ADI_WALL[1]))
+    crop = (..., slice(192, 320), slice(176, 336))
+    meta = {"modulation_frequency_hz": None, "integration_time_us": None, "n_phases": None}
+    diag = diagnose(tio.Recording(depth[crop], ir[crop], meta), None, replicates=0)
+    assert diag.effects[:1] == ["fpn_pattern"], diag.report["verdict"]
+    assert diag.obs.scene_estimated
+    col = next(
+        w for w in diag.report["effects"][0]["where"] if w["statistic"] == "depth_mean|column"
+    )
+    assert col["excess_sigma"] > 20
+    spec = col["spectrum"]
+    assert spec["verdict"] == "broadband"
+    assert sum(spec["excess_power_share_near"].values()) < 0.2
+    before, after = diag.report["fit"]["before"], diag.report["fit"]["after"]
+    assert after["heldout_nll"] < before["heldout_nll"] - 100
+
+
+def test_readme_diagnose_command_works_as_written(tmp_path, monkeypatch, capsys):
+    import re
+    import shlex
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    line = re.search(r"^tof-fpn diagnose .*$", text, re.M)
+    assert line, "README shows no tof-fpn diagnose command"
+    words = shlex.split(line.group(0), comments=True)
+    rec, scene = _recording(seed=6)
+    monkeypatch.chdir(tmp_path)
+    write_recording(words[2], rec)
+    write_scene(words[words.index("--scene") + 1], scene)
+    status, cap = _cli(capsys, *words[2:])
+    assert status == 0, cap.err
+    out = Path(words[words.index("--out") + 1])
+    assert json.loads((out / "report.json").read_text())["effects"] == []
+    assert (out / "report.md").is_file() and (out / "model.json").is_file()
