@@ -57,6 +57,17 @@ ALLOWED: dict[str, set[str]] = {
     "io": {"runtime", "cameras"},
     # tof-fpn clean: the pipeline over files (docs/clean.md)
     "clean": {"runtime", "build", "denoise", "io", "cameras", "analysis"},
+    # sim vs. recording (issue 10): reads recordings / scenes, runs the simulator, fits it
+    "diagnosis": {
+        "runtime",
+        "analysis",
+        "sim",
+        "io",
+        "denoise",
+        "design",
+        "cameras",
+        "plotting",
+    },
     "cli": {
         "runtime",
         "design",
@@ -71,6 +82,7 @@ ALLOWED: dict[str, set[str]] = {
         "learn",
         "io",
         "clean",
+        "diagnosis",
     },
 }
 #: third-party packages a layer may import (beyond the standard library)
@@ -84,6 +96,7 @@ THIRD_PARTY: dict[str, set[str]] = {
     "cameras": set(),
     "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av", "PIL"},
     "clean": {"torch", "numpy", "tqdm", "ray", "tomli"},
+    "diagnosis": {"torch", "numpy"},
 }
 
 

@@ -197,3 +197,52 @@ PAPER_TABLE2: dict[str, tuple[tuple[float, float], ...]] = {
     "bm3d": ((24.3, 28.4), (28.8, 31.4), (32.9, 35.4)),
     "sdct": ((24.4, 26.4), (26.2, 27.9), (27.8, 28.1)),
 }
+
+# --- diagnosis: simulation vs. recording (issue 10; tof_fpn_torch.diagnosis) --------------------
+#: Scales of the optimiser's variables: depth-like parameters move in mm steps, correlation
+#: harmonics in 1 % steps of the fundamental.
+DIAG_SCALE_DEPTH: float = 1e-3
+DIAG_SCALE_CYCLIC: float = 0.01
+#: Largest share of impulsive frame-pixels the mixture may fit.
+DIAG_MAX_IMPULSIVE_RATE: float = 0.5
+#: Pixels enter the depth likelihood where the predicted amplitude is at least this many times
+#: the noise of one component of (2/N) X_1 (below it the phase is far from Gaussian) ...
+DIAG_MIN_SNR_DEPTH: float = 5.0
+#: ... and the amplitude likelihood above this (the Rician mean and spread are used).
+DIAG_MIN_SNR_AMPLITUDE: float = 2.0
+#: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels.
+DIAG_SPLIT_BLOCK: int = 8
+#: Iterations of L-BFGS per fit.
+DIAG_FIT_ITERS: int = 40
+#: Family-wise false-alarm probability of the located statistics (Bonferroni over all of them).
+DIAG_ALPHA: float = 0.01
+#: Parametric-bootstrap recordings per null distribution.
+DIAG_BOOTSTRAP: int = 8
+#: Smallest null scale (bootstrap mean / df) a chi^2 statistic may get.
+DIAG_MIN_NULL_SCALE: float = 0.25
+#: A frame-pixel further than this many sigma from the model is a tail event.
+DIAG_TAIL_Z: float = 5.0
+#: A candidate term is named when its held-out log-likelihood gain is at least this many nats ...
+DIAG_MIN_GAIN: float = 10.0
+#: ... and it lowers the AIC on the fitting half by at least this much.
+DIAG_MIN_DAIC: float = 10.0
+#: Iterations of L-BFGS when a candidate term is fitted on the fitting half.
+DIAG_CANDIDATE_ITERS: int = 20
+#: After a term is added, the next round re-fits only the candidates whose held-out gain was at
+#: least this many nats (at most ``DIAG_RETRY_MAX`` of them, best first).
+DIAG_RETRY_GAIN: float = 1.0
+DIAG_RETRY_MAX: int = 6
+#: A fit stops when a further round (fresh Hessian, L-BFGS) gains less than this many nats, or
+#: after ``DIAG_FIT_ROUNDS`` rounds.
+DIAG_FIT_TOL: float = 0.5
+DIAG_FIT_ROUNDS: int = 4
+#: Pixels whose temporal mean or spread is within this many sigma of a grossly misfitting model
+#: give the robust starting values that every candidate term is also tried from.
+DIAG_INLIER_Z: float = 4.0
+#: Resolution of the diagnosis figures.
+DIAG_FIGURE_DPI: int = 110
+#: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
+#: out of the likelihood (the smoothing cannot follow the edge there).
+DIAG_EDGE_MARGIN: int = 2
+#: Starting rms of the per-pixel amplitude texture of the estimated-scene baseline.
+DIAG_TEXTURE_RMS: float = 0.02

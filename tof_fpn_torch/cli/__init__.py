@@ -19,7 +19,7 @@ from .. import __version__
 from ..design import RemezConvergenceError
 
 #: Sub-command modules under ``tof_fpn_torch.cli``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("design", "export", "reproduce", "demo", "clean")
+COMMANDS: tuple[str, ...] = ("design", "export", "reproduce", "demo", "clean", "diagnose")
 
 
 class _ParseError(Exception):

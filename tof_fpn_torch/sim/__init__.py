@@ -8,6 +8,11 @@ samples that the stages, experiments and diagnosis consume.
   :func:`depth_from_samples` / :class:`DepthFromSamples`.
 * :mod:`~tof_fpn_torch.sim.terms` -- the named physical terms (photons, shot noise, read noise);
   :mod:`~tof_fpn_torch.sim.readout` -- read-out FPN, ADC, impulsive pixels.
+* :mod:`~tof_fpn_torch.sim.effects` -- effects beyond the default chain, one named term each
+  (the diagnosis catalogue): :class:`FPNPattern`, :class:`CyclicError`, :class:`AmplitudeBias`,
+  :class:`Vignetting`, :class:`TemporalDrift`, :class:`PhaseJitter`, :class:`PixelGain`,
+  :class:`LensBlur`, :class:`Saturation` (the last four in :mod:`~tof_fpn_torch.sim.optics`);
+  :func:`with_effect` inserts one in a chain.
 * :mod:`~tof_fpn_torch.sim.simulator` -- :class:`Simulation` (camera + list of terms) and
   :func:`simulate`.
 * :mod:`~tof_fpn_torch.sim.depth_model` -- eq. (2) noise and the eq. (10) FPN in the depth domain.
@@ -40,6 +45,16 @@ from .depth_model import (
     noise_lambda,
     noise_lambda_for_psnr,
 )
+from .effects import (
+    STAGE,
+    AmplitudeBias,
+    CyclicError,
+    FPNPattern,
+    PhaseJitter,
+    TemporalDrift,
+    with_effect,
+)
+from .optics import LensBlur, PixelGain, Saturation, Vignetting
 from .readout import ADC, ImpulsivePixels, ReadoutFPN, default_terms
 from .scenes import MATERIALS, Scene, planar_scene, synthetic_scene
 from .simulator import SimResult, Simulation, simulate
@@ -47,6 +62,17 @@ from .terms import Photons, ReadNoise, ShotNoise, SimState, Term
 
 __all__ = [
     "ADC",
+    "STAGE",
+    "AmplitudeBias",
+    "CyclicError",
+    "FPNPattern",
+    "LensBlur",
+    "PhaseJitter",
+    "PixelGain",
+    "Saturation",
+    "TemporalDrift",
+    "Vignetting",
+    "with_effect",
     "AmplitudeCurve",
     "FPN_ALPHA",
     "FPN_BETA",

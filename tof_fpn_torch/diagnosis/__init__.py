@@ -1,0 +1,23 @@
+"""Simulation vs. recording: locate the mismatch, name the missing physics, model it, refit."""
+
+from .catalogue import CATALOGUE, VOCABULARY, implemented
+from .data import Observations, estimate_scene, observe
+from .model import DiagnosisModel, Prediction, predict
+from .persist import load_model, save_model
+from .run import Diagnosis, diagnose
+
+__all__ = [
+    "CATALOGUE",
+    "VOCABULARY",
+    "Diagnosis",
+    "DiagnosisModel",
+    "Observations",
+    "Prediction",
+    "diagnose",
+    "estimate_scene",
+    "implemented",
+    "load_model",
+    "observe",
+    "predict",
+    "save_model",
+]

@@ -1,0 +1,165 @@
+"""Negative log-likelihood of a recording under a model, frames pooled (depth and amplitude domain).
+
+For a Gaussian model with per-pixel mean ``mu`` and per-frame sd ``sigma`` the frame-level NLL of
+pixel ``p`` is computed exactly from its ``(n, m, M2)``::
+
+    0.5 [log(2 pi v_m) + (m - mu)^2 / v_m] + 0.5 [(n - 1) log(2 pi sigma^2) + M2 / sigma^2]
+    + 0.5 log n,          v_m = sigma^2 / n + tau^2
+
+(``tau``: a random effect fixed over time, e.g. the pixel gain on the amplitude). Depth and
+amplitude count as independent (their noises are orthogonal components of ``X_1``). Effects that
+act per frame change the statistics: ``temporal_drift`` subtracts its per-frame delay (and scales
+the amplitude) before they are taken; ``impulsive_pixels`` turns every frame-pixel into a mixture
+``(1 - r) N_D N_A + r U_D U_A`` with uniform densities over the observed depth and amplitude
+ranges, evaluated on the frames themselves.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from .. import constants as K
+from .data import Observations, pixel_stats
+
+__all__ = ["Context", "make_context", "nll", "n_observations"]
+
+_LOG2PI = math.log(2 * math.pi)
+
+
+@dataclass
+class Context:
+    """Fixed for one diagnosis: the pixel masks of the two channels, the split into fitting
+    (``train``) and held-out (``test``) pixels, the cached scene and the outlier densities."""
+
+    mask_d: torch.Tensor
+    mask_a: torch.Tensor
+    train: torch.Tensor
+    test: torch.Tensor
+    scene: object
+    depth_span: float
+    amp_span: float
+    _frames: dict = field(default_factory=dict)
+
+    def select(self, sel: str) -> torch.Tensor:
+        if sel == "all":
+            return torch.ones_like(self.train)
+        return self.train if sel == "train" else self.test
+
+    def frames(self, obs: Observations, sel: str, channel: str):
+        """Frames of the selected pixels of a channel: (T, P) values, validity, pixel index."""
+        key = (sel, channel)
+        if key not in self._frames:
+            m = (self.mask_d if channel == "d" else self.mask_a) & self.select(sel)
+            idx = m.reshape(-1).nonzero().squeeze(1)
+            t = obs.frames
+            x = (obs.depth if channel == "d" else obs.amplitude).reshape(t, -1)[:, idx]
+            v = obs.valid.reshape(t, -1)[:, idx]
+            self._frames[key] = (torch.where(v, x, torch.zeros_like(x)), v, idx)
+        return self._frames[key]
+
+
+def make_context(obs: Observations, snr: torch.Tensor) -> Context:
+    """Masks from the predicted SNR (``A_0 / s``), the checkerboard split, outlier ranges."""
+    base = obs.known & (obs.n > 0)
+    if obs.scene_estimated:  # the estimate is poor within a few px of a depth edge
+        from .axes import edge_distance
+
+        base &= edge_distance(obs.scene_depth, obs.known) > K.DIAG_EDGE_MARGIN
+    mask_d = base & (snr >= K.DIAG_MIN_SNR_DEPTH)
+    mask_a = base & (snr >= K.DIAG_MIN_SNR_AMPLITUDE)
+    h, w = obs.shape
+    b = K.DIAG_SPLIT_BLOCK
+    yy = torch.arange(h).view(h, 1) // b
+    xx = torch.arange(w).view(1, w) // b
+    train = ((yy + xx) % 2) == 0
+    dv = obs.depth[obs.valid]
+    av = obs.amplitude[obs.valid]
+    span_d = max(float(dv.max()), float(obs.scene_depth[obs.known].max())) * 1.05
+    span_a = max(float(av.max()), 1e-6) * 1.05
+    return Context(mask_d, mask_a | mask_d, train, ~train, obs.scene(), span_d, span_a)
+
+
+def n_observations(obs: Observations, ctx: Context, sel: str = "all") -> float:
+    s = ctx.select(sel)
+    return float(obs.n[ctx.mask_d & s].sum() + obs.n[ctx.mask_a & s].sum())
+
+
+def _gauss_ss(n, m, m2, mu, sd, tau, wrap):
+    r = m - mu
+    if wrap is not None:
+        r = r - wrap * torch.round(r / wrap)
+    var = sd * sd
+    vm = var / n + tau * tau if isinstance(tau, torch.Tensor) else var / n + tau**2
+    out = 0.5 * (torch.log(vm) + _LOG2PI + r * r / vm)
+    out = out + 0.5 * ((n - 1) * (torch.log(var) + _LOG2PI) + m2 / var) + 0.5 * torch.log(n)
+    return out.sum()
+
+
+def _drift_curve(model, obs, v):
+    tau = v["temporal_drift.time_constant"]
+    return 1.0 - torch.exp(-obs.times / tau)
+
+
+def _pick(x, idx):
+    if isinstance(x, torch.Tensor) and x.dim() == 2:
+        return x.reshape(-1)[idx]
+    return x
+
+
+def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all") -> torch.Tensor:
+    """Frame-level NLL (nats) of the selected pixels of both channels."""
+    drift = "temporal_drift" in model.effects
+    mixture = "impulsive_pixels" in model.effects
+    s = ctx.select(sel)
+    if not drift and not mixture:
+        md, ma = ctx.mask_d & s, ctx.mask_a & s
+        out = _gauss_ss(
+            obs.n[md], obs.m_d[md], obs.m2_d[md], pred.mu_d[md], pred.sd_d[md], 0.0, pred.wrap
+        )
+        tau = pred.tau_a[ma] if isinstance(pred.tau_a, torch.Tensor) else pred.tau_a
+        return out + _gauss_ss(
+            obs.n[ma], obs.m_a[ma], obs.m2_a[ma], pred.mu_a[ma], pred.sd_a[ma], tau, None
+        )
+    xd, vd, idd = ctx.frames(obs, sel, "d")
+    xa, va, ida = ctx.frames(obs, sel, "a")
+    t = obs.frames
+    u = _drift_curve(model, obs, v).view(t, 1) if drift else None
+    mu_d, sd_d = _pick(pred.mu_d, idd).view(1, -1), _pick(pred.sd_d, idd).view(1, -1)
+    mu_a, sd_a = _pick(pred.mu_a, ida).view(1, -1), _pick(pred.sd_a, ida).view(1, -1)
+    tau = _pick(pred.tau_a, ida)
+    tau = tau.view(1, -1) if isinstance(tau, torch.Tensor) else tau
+    if drift:
+        mu_d = mu_d + u * v["temporal_drift.depth_step"]
+        mu_a = mu_a * (1.0 + u * v["temporal_drift.amplitude_step"])
+    if not mixture:
+        yd = xd - (mu_d - mu_d[:1]) if drift else xd
+        ya = xa - (mu_a - mu_a[:1]) if drift else xa
+        n, m, m2 = pixel_stats(yd, vd)
+        out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], 0.0, pred.wrap)
+        n, m, m2 = pixel_stats(ya, va)
+        tau0 = tau[0] if isinstance(tau, torch.Tensor) else tau
+        return out + _gauss_ss(n, m, m2, mu_a[0], sd_a[0], tau0, None)
+    rate = v["impulsive_pixels.rate"]
+    rd = xd - mu_d
+    if pred.wrap is not None:
+        rd = rd - pred.wrap * torch.round(rd / pred.wrap)
+    ld = -0.5 * (rd / sd_d) ** 2 - torch.log(sd_d) - 0.5 * _LOG2PI
+    va_tot = sd_a**2 + (tau**2 if isinstance(tau, torch.Tensor) else tau**2)
+    la = -0.5 * (xa - mu_a) ** 2 / va_tot - 0.5 * torch.log(va_tot) - 0.5 * _LOG2PI
+    lu_d = -math.log(ctx.depth_span)
+    lu_a = -math.log(ctx.amp_span)
+    log_r = torch.log(torch.as_tensor(rate, dtype=torch.float64))
+    log_q = torch.log1p(-torch.as_tensor(rate, dtype=torch.float64))
+    # the depth pixels are amplitude pixels too (mask_d is inside mask_a): they share the label
+    pos = torch.searchsorted(ida, idd)
+    joint = torch.logaddexp(log_q + ld + la[:, pos], log_r + lu_d + lu_a)
+    out = -(joint * vd).sum()
+    only_a = torch.ones(ida.numel(), dtype=torch.bool)
+    only_a[pos] = False
+    if bool(only_a.any()):
+        ja = torch.logaddexp(log_q + la[:, only_a], log_r + lu_a)
+        out = out - (ja * va[:, only_a]).sum()
+    return out

@@ -1,0 +1,64 @@
+"""Fitted parameters: physical values and the unconstrained variables the optimiser moves.
+
+Every parameter has a key (``"photons.responsivity"``, ``"cyclic_error.cos3"``), a kind and a
+scale: ``lin`` (value = u * scale, any sign), ``log`` (value = scale * e^u, > 0), ``logit``
+(value = scale / (1 + e^-u), in (0, scale)) ``abs`` (value = scale |u|, >= 0, linear near zero) or ``rootabs`` (value = sqrt(scale |u|), >= 0: a
+standard deviation whose variance is linear in ``u``, so that the optimiser does not stall on the
+plateau a logarithm or a softplus has near zero). The model stores physical values; the fit works on
+``u`` so that one step of the optimiser is about one scale.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+__all__ = ["ParamSpec", "from_u", "to_u"]
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One fitted scalar: ``key``, ``kind`` (``lin``/``log``/``logit``), ``scale``, ``unit``."""
+
+    key: str
+    kind: str = "lin"
+    scale: float = 1.0
+    unit: str = ""
+
+
+def to_u(spec: ParamSpec, value: float) -> float:
+    """The optimiser's variable for a physical ``value``."""
+    v = float(value)
+    if spec.kind == "lin":
+        return v / spec.scale
+    if spec.kind == "log":
+        return math.log(max(v, 1e-300) / spec.scale)
+    if spec.kind == "logit":
+        p = min(max(v / spec.scale, 1e-12), 1 - 1e-12)
+        return math.log(p / (1 - p))
+    if spec.kind == "rootabs":
+        return v * v / spec.scale
+    if spec.kind == "abs":
+        return v / spec.scale
+    raise ValueError(f"unknown parameter kind {spec.kind!r}")
+
+
+def from_u(spec: ParamSpec, u):
+    """The physical value of ``u`` (a float or a tensor; keeps the autograd graph)."""
+    if spec.kind == "lin":
+        return u * spec.scale
+    if spec.kind == "log":
+        return spec.scale * (torch.exp(u) if isinstance(u, torch.Tensor) else math.exp(u))
+    if spec.kind == "logit":
+        return spec.scale * (
+            torch.sigmoid(u) if isinstance(u, torch.Tensor) else 1 / (1 + math.exp(-u))
+        )
+    if spec.kind == "abs":
+        return spec.scale * (u.abs() if isinstance(u, torch.Tensor) else abs(u))
+    if spec.kind == "rootabs":
+        if isinstance(u, torch.Tensor):
+            return torch.sqrt(spec.scale * u.abs() + 1e-300)
+        return math.sqrt(spec.scale * abs(u))
+    raise ValueError(f"unknown parameter kind {spec.kind!r}")

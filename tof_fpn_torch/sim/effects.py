@@ -1,0 +1,351 @@
+"""Physical effects beyond the default chain: the diagnosis catalogue as simulator terms.
+
+Each class is a :class:`~tof_fpn_torch.sim.terms.Term` (a dataclass with a fixed ``name`` and
+numeric fields in physical units; fields may be 0-d tensors with ``requires_grad`` for fitting),
+usable in any :class:`~tof_fpn_torch.sim.Simulation`. :func:`with_effect` inserts one at its place
+in the chain (``STAGE``). All act on the correlation samples in e- (before :class:`ADC`).
+
+Phase effects act on the first DFT harmonic of the samples (``X_1 = (N A/2) e^{j phi}``, the part
+eq. (1) decodes): a delay ``delta`` (m) rotates it by ``4 pi f delta / c_L``, which moves the
+decoded depth by exactly ``delta`` for a sinusoidal correlation and leaves the offset alone.
+
+Catalogue name -> class: physics (parameters):
+
+* ``fpn_pattern`` -> :class:`FPNPattern`: column / row delays of the demodulation clock tree, any
+  spectrum (profiles in m, or ``rms_*`` in m with an AR(1) ``correlation``);
+* ``amplitude_bias`` -> :class:`AmplitudeBias`: signal-dependent delay ``b A_ref / (A + A_ref)``
+  (b in m, A_ref in e-);
+* ``temporal_drift`` -> :class:`TemporalDrift`: warm-up delay ``D (1 - e^{-t/tau})`` (m, s) and
+  light output ``1 + a (1 - e^{-t/tau})``;
+* ``noise_floor`` -> :class:`PhaseJitter`: per-pixel, per-frame clock jitter (depth-equivalent
+  rms, m);
+* ``cyclic_error`` -> :class:`CyclicError`: correlation harmonics ``alpha_h cos(h psi) + beta_h
+  sin(h psi)`` (relative to the fundamental);
+* ``vignetting`` -> :class:`~tof_fpn_torch.sim.optics.Vignetting`: lens fall-off ``1 + a2 r^2 +
+  a4 r^4`` (r in half-diagonals from a centre in px);
+* ``pixel_gain`` -> :class:`~tof_fpn_torch.sim.optics.PixelGain`: photo-response non-uniformity
+  (relative rms, fixed map);
+* ``flying_pixels`` -> :class:`~tof_fpn_torch.sim.optics.LensBlur`: Gaussian PSF (px) mixing the
+  returns of neighbouring pixels at depth edges;
+* ``saturation`` -> :class:`~tof_fpn_torch.sim.optics.Saturation`: full-well / anti-blooming clip
+  of every sample (e-, knee e-).
+
+``impulsive_pixels`` is :class:`~tof_fpn_torch.sim.readout.ImpulsivePixels`; ``phase_wrapping`` is
+the decoder's own folding at ``camera.modulation_frequency`` (every simulation wraps).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from .camera import SPEED_OF_LIGHT_AIR, _as_float, _check_range
+from .terms import SimState, Term, _num, _randn
+
+__all__ = [
+    "STAGE",
+    "AmplitudeBias",
+    "CyclicError",
+    "FPNPattern",
+    "PhaseJitter",
+    "TemporalDrift",
+    "fundamental",
+    "rotate_fundamental",
+    "with_effect",
+]
+
+#: position of every term in the chain (lower runs first)
+STAGE: dict[str, int] = {
+    "photons": 0,
+    "fpn_pattern": 10,
+    "temporal_drift": 12,
+    "noise_floor": 13,
+    "cyclic_error": 20,
+    "vignetting": 30,
+    "pixel_gain": 31,
+    "flying_pixels": 32,
+    "amplitude_bias": 35,
+    "shot_noise": 40,
+    "readout_fpn": 50,
+    "read_noise": 60,
+    "saturation": 65,
+    "adc": 70,
+    "impulsive": 80,
+}
+
+
+def _angles(n: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    t = torch.arange(n, dtype=torch.float64, device=like.device) * (2 * math.pi / n)
+    return torch.cos(t).to(like.dtype).view(1, n, 1, 1), torch.sin(t).to(like.dtype).view(
+        1, n, 1, 1
+    )
+
+
+def fundamental(samples: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(Re X_1, Im X_1)`` of (B, N, H, W) samples, each (B, 1, H, W)."""
+    c, s = _angles(samples.shape[1], samples)
+    return (samples * c).sum(1, keepdim=True), -(samples * s).sum(1, keepdim=True)
+
+
+def rotate_fundamental(samples: torch.Tensor, phase, scale=None) -> torch.Tensor:
+    """Multiply the first harmonic by ``scale e^{j phase}`` (delay / gain of the modulated part);
+    the offset and the other DFT bins stay. ``phase``, ``scale``: broadcastable to (B, 1, H, W)."""
+    n = samples.shape[1]
+    c, s = _angles(n, samples)
+    xr, xi = fundamental(samples)
+    cp, sp = torch.cos(phase), torch.sin(phase)
+    if scale is not None:
+        cp, sp = cp * scale, sp * scale
+    yr, yi = xr * cp - xi * sp, xr * sp + xi * cp
+    return samples + (2.0 / n) * ((yr - xr) * c - (yi - xi) * s)
+
+
+def _phase_per_metre(camera) -> float:
+    return 4.0 * math.pi * _as_float(camera.modulation_frequency, "f") / SPEED_OF_LIGHT_AIR
+
+
+def _profile(values, length: int, what: str, like: torch.Tensor) -> torch.Tensor:
+    p = values if isinstance(values, torch.Tensor) else torch.tensor(values, dtype=torch.float64)
+    p = p.to(device=like.device, dtype=like.dtype).reshape(-1)
+    if p.numel() != length:
+        raise ValueError(f"FPNPattern.{what} has {p.numel()} entries, the frame {length}")
+    return p
+
+
+def _ar1(length: int, rho: float, gen: torch.Generator) -> torch.Tensor:
+    xi = torch.randn(length, generator=gen, dtype=torch.float64)
+    out = torch.empty_like(xi)
+    out[0] = xi[0]
+    for i in range(1, length):
+        out[i] = rho * out[i - 1] + math.sqrt(1 - rho * rho) * xi[i]
+    out = out - out.mean()
+    return out / out.std().clamp_min(1e-12)
+
+
+@dataclass
+class FPNPattern(Term):
+    """Column- and row-wise delays (m): the skew of the demodulation clock along its tree.
+
+    A column ``x`` demodulates ``delta_c(x)`` later, a row ``y`` ``delta_r(y)`` later: the first
+    harmonic turns by ``4 pi f (delta_c(x) + delta_r(y)) / c_L``, so the depth moves by that many
+    metres at any amplitude (unlike :class:`~tof_fpn_torch.sim.ReadoutFPN`'s read-out offsets,
+    whose depth error falls as ``1 / A``). Any spectrum: broadband, periodic or random.
+
+    Args:
+        column_profile, row_profile: explicit delays (m), one per column / row, or ``None``.
+        rms_columns, rms_rows: otherwise a random profile of this rms (m) from ``seed``,
+            an AR(1) sequence with coefficient ``correlation`` in [0, 1) (0: white).
+        correlation: neighbour correlation of the random profiles.
+        seed: seed of the random profiles (the same in every frame).
+    """
+
+    column_profile: object = None
+    row_profile: object = None
+    rms_columns: float = 0.0
+    rms_rows: float = 0.0
+    correlation: float = 0.0
+    seed: int = 11
+    name: str = field(default="fpn_pattern", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> FPNPattern:
+        _check_range(self.rms_columns, "FPNPattern.rms_columns", 0.0, strict=False, unit=" m")
+        _check_range(self.rms_rows, "FPNPattern.rms_rows", 0.0, strict=False, unit=" m")
+        c = _check_range(self.correlation, "FPNPattern.correlation", 0.0, strict=False)
+        if c >= 1:
+            raise ValueError(f"FPNPattern.correlation must be in [0, 1), got {c!r}")
+        return self
+
+    def profiles(self, h: int, w: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Column (W,) and row (H,) delays in metres."""
+        gen = torch.Generator().manual_seed(int(self.seed))
+        rho = _as_float(self.correlation, "correlation")
+        out = []
+        for prof, rms, n, what in (
+            (self.column_profile, self.rms_columns, w, "column_profile"),
+            (self.row_profile, self.rms_rows, h, "row_profile"),
+        ):
+            if prof is not None:
+                out.append(_profile(prof, n, what, like))
+            else:
+                r = _ar1(n, rho, gen).to(device=like.device, dtype=like.dtype)
+                out.append(r * _num(rms, like))
+        return out[0], out[1]
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        _, _, h, w = s.shape
+        col, row = self.profiles(h, w, s)
+        delay = col.view(1, 1, 1, w) + row.view(1, 1, h, 1)
+        state.samples = rotate_fundamental(s, delay * _phase_per_metre(state.camera))
+        return state
+
+
+@dataclass
+class AmplitudeBias(Term):
+    """Signal-dependent delay: ``delta(A) = b A_ref / (A + A_ref)`` (m) at amplitude ``A`` (e-).
+
+    The demodulation of a weak photocurrent lags (charge transfer slower at low charge): the
+    depth reads ``b`` too far at ``A << A_ref`` and the bias fades above ``A_ref``.
+
+    Args:
+        delay: ``b`` in metres (either sign).
+        reference: ``A_ref`` in e- of amplitude (> 0).
+    """
+
+    delay: float = 0.0
+    reference: float = 1000.0
+    name: str = field(default="amplitude_bias", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> AmplitudeBias:
+        _as_float(self.delay, "AmplitudeBias.delay")
+        _check_range(self.reference, "AmplitudeBias.reference", 0.0, strict=True, unit=" e-")
+        return self
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        xr, xi = fundamental(s)
+        amp = torch.sqrt(xr * xr + xi * xi + 1e-12) * (2.0 / s.shape[1])
+        ref = _num(self.reference, s)
+        bias = _num(self.delay, s) * ref / (amp + ref)
+        state.samples = rotate_fundamental(s, bias * _phase_per_metre(state.camera))
+        return state
+
+
+@dataclass
+class TemporalDrift(Term):
+    """Warm-up drift: delay ``D (1 - e^{-t/tau})`` (m) and light output ``1 + a (1 - e^{-t/tau})``.
+
+    Frame ``f`` of a run is at ``t = f * frame_interval`` (s). Args: ``depth_step`` D (m),
+    ``amplitude_step`` a (relative, > -1), ``time_constant`` tau (s, > 0), ``frame_interval`` (s).
+    """
+
+    depth_step: float = 0.0
+    amplitude_step: float = 0.0
+    time_constant: float = 1.0
+    frame_interval: float = 1.0 / 30.0
+    name: str = field(default="temporal_drift", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> TemporalDrift:
+        _as_float(self.depth_step, "TemporalDrift.depth_step")
+        if _as_float(self.amplitude_step, "TemporalDrift.amplitude_step") <= -1:
+            raise ValueError("TemporalDrift.amplitude_step must be > -1")
+        _check_range(self.time_constant, "TemporalDrift.time_constant", 0.0, strict=True, unit=" s")
+        _check_range(self.frame_interval, "TemporalDrift.frame_interval", 0.0, strict=True)
+        return self
+
+    def curve(self, times: torch.Tensor) -> torch.Tensor:
+        """``1 - exp(-t / tau)`` at ``times`` (s)."""
+        return 1.0 - torch.exp(-times / _num(self.time_constant, times))
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.expand().samples
+        b = s.shape[0]
+        frame = torch.arange(b, device=s.device, dtype=s.dtype) % state.frames
+        u = self.curve(frame * _as_float(self.frame_interval, "frame_interval")).view(b, 1, 1, 1)
+        phase = u * _num(self.depth_step, s) * _phase_per_metre(state.camera)
+        state.samples = rotate_fundamental(s, phase, 1.0 + u * _num(self.amplitude_step, s))
+        return state
+
+
+@dataclass
+class PhaseJitter(Term):
+    """Clock jitter: every pixel of every frame is delayed by an independent ``N(0, sigma^2)``
+    (``sigma`` in m, depth-equivalent): a depth noise floor that does not fall with amplitude."""
+
+    sigma: float = 0.0
+    name: str = field(default="noise_floor", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> PhaseJitter:
+        _check_range(self.sigma, "PhaseJitter.sigma", 0.0, strict=False, unit=" m")
+        return self
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.expand().samples
+        b, _, h, w = s.shape
+        xi = _randn((b, 1, h, w), state.generator, s)
+        state.samples = rotate_fundamental(
+            s, xi * (_num(self.sigma, s) * _phase_per_metre(state.camera))
+        )
+        return state
+
+
+@dataclass
+class CyclicError(Term):
+    """Non-sinusoidal correlation ("wiggling"): harmonics of the fundamental.
+
+    ``R_n = B + A [cos(psi_n) + sum_h alpha_h cos(h psi_n) + beta_h sin(h psi_n)]`` with
+    ``psi_n = phi + 2 pi n / N``. Harmonic ``h`` aliases into the decoded phase (for N = 4 the
+    3rd and 5th give a depth error of period ``c_L / (8 f)``). Args: ``harmonics`` (ints >= 2),
+    ``cos_terms`` alpha_h and ``sin_terms`` beta_h relative to the fundamental.
+    """
+
+    harmonics: tuple = (3, 5)
+    cos_terms: tuple = (0.0, 0.0)
+    sin_terms: tuple = (0.0, 0.0)
+    name: str = field(default="cyclic_error", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> CyclicError:
+        k = len(self.harmonics)
+        if len(self.cos_terms) != k or len(self.sin_terms) != k:
+            raise ValueError("CyclicError: one cos_terms and sin_terms entry per harmonic")
+        for h in self.harmonics:
+            if isinstance(h, bool) or not isinstance(h, int) or h < 2:
+                raise ValueError(f"CyclicError.harmonics must be ints >= 2, got {self.harmonics}")
+        for v in (*self.cos_terms, *self.sin_terms):
+            _as_float(v, "CyclicError terms")
+        return self
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        n = s.shape[1]
+        xr, xi = fundamental(s)
+        mag = torch.sqrt(xr * xr + xi * xi + 1e-12)
+        amp = mag * (2.0 / n)
+        theta = torch.arange(n, dtype=torch.float64, device=s.device) * (2 * math.pi / n)
+        ur, ui = (xr / mag), (xi / mag)  # e^{j phi}
+        add = torch.zeros_like(s)
+        for h, a, b in zip(self.harmonics, self.cos_terms, self.sin_terms, strict=True):
+            # e^{j h psi_n} = e^{j h phi} e^{j h theta_n}
+            pr, pi_ = torch.ones_like(ur), torch.zeros_like(ui)
+            for _ in range(h):
+                pr, pi_ = pr * ur - pi_ * ui, pr * ui + pi_ * ur
+            ct = torch.cos(h * theta).to(s.dtype).view(1, n, 1, 1)
+            st = torch.sin(h * theta).to(s.dtype).view(1, n, 1, 1)
+            cos_h = pr * ct - pi_ * st
+            sin_h = pr * st + pi_ * ct
+            add = add + _num(a, s) * cos_h + _num(b, s) * sin_h
+        state.samples = s + amp * add
+        return state
+
+
+def with_effect(sim, term: Term):
+    """A copy of ``sim`` with ``term`` inserted at its place in the chain (:data:`STAGE`), or
+    replacing the term of the same name."""
+    from .simulator import Simulation
+
+    terms = [t for t in sim.terms if t.name != term.name]
+    rank = STAGE.get(term.name, 50)
+    pos = len(terms)
+    for i, t in enumerate(terms):
+        if STAGE.get(t.name, 50) > rank:
+            pos = i
+            break
+    terms.insert(pos, term)
+    return Simulation(sim.camera, terms)

@@ -1,0 +1,165 @@
+"""Optical and pixel effects of the diagnosis catalogue as simulator terms (see
+:mod:`tof_fpn_torch.sim.effects` for the catalogue table and the chain order).
+
+:class:`Vignetting` (lens fall-off), :class:`PixelGain` (PRNU), :class:`LensBlur` (the point-spread
+function that makes flying pixels at depth edges) and :class:`Saturation` (full-well clip). All act
+on the correlation samples in e-.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+
+from .camera import _as_float, _check_range
+from .terms import SimState, Term, _num
+
+__all__ = ["LensBlur", "PixelGain", "Saturation", "Vignetting"]
+
+
+def _radius2(h: int, w: int, cx, cy, like: torch.Tensor) -> torch.Tensor:
+    yy = torch.arange(h, device=like.device, dtype=like.dtype).view(h, 1) - (h - 1) / 2.0
+    xx = torch.arange(w, device=like.device, dtype=like.dtype).view(1, w) - (w - 1) / 2.0
+    half_diag2 = ((h - 1) / 2.0) ** 2 + ((w - 1) / 2.0) ** 2
+    return ((xx - _num(cx, like)) ** 2 + (yy - _num(cy, like)) ** 2) / half_diag2
+
+
+@dataclass
+class Vignetting(Term):
+    """Lens fall-off of the collected light: gain ``1 + a2 r^2 + a4 r^4`` on every sample, ``r``
+    the distance from the optical centre (``centre_x``, ``centre_y`` px from the frame centre) in
+    half-diagonals. ``relative_illumination(r)`` is the gain (1 at the centre)."""
+
+    quadratic: float = 0.0
+    quartic: float = 0.0
+    centre_x: float = 0.0
+    centre_y: float = 0.0
+    name: str = field(default="vignetting", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> Vignetting:
+        a2 = _as_float(self.quadratic, "Vignetting.quadratic")
+        a4 = _as_float(self.quartic, "Vignetting.quartic")
+        _as_float(self.centre_x, "Vignetting.centre_x")
+        _as_float(self.centre_y, "Vignetting.centre_y")
+        if 1 + min(0.0, a2) + min(0.0, a4) <= 0:
+            raise ValueError(f"Vignetting gain must stay > 0 at r = 1, got a2={a2}, a4={a4}")
+        return self
+
+    def gain(self, h: int, w: int, like: torch.Tensor) -> torch.Tensor:
+        r2 = _radius2(h, w, self.centre_x, self.centre_y, like)
+        g = 1.0 + _num(self.quadratic, like) * r2 + _num(self.quartic, like) * r2 * r2
+        return g.clamp_min(1e-3).view(1, 1, h, w)
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        state.samples = s * self.gain(s.shape[2], s.shape[3], s)
+        return state
+
+
+@dataclass
+class PixelGain(Term):
+    """Photo-response non-uniformity: pixel ``p`` collects ``g_p`` times the light, ``g_p = 1 +
+    rms xi_p`` (fixed from ``seed``) or the given ``gain_map`` (H, W)."""
+
+    rms: float = 0.0
+    seed: int = 5
+    gain_map: object = None
+    name: str = field(default="pixel_gain", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> PixelGain:
+        _check_range(self.rms, "PixelGain.rms", 0.0, strict=False)
+        return self
+
+    def gain(self, h: int, w: int, like: torch.Tensor) -> torch.Tensor:
+        if self.gain_map is not None:
+            g = torch.as_tensor(self.gain_map).to(device=like.device, dtype=like.dtype)
+            if g.numel() != h * w:
+                raise ValueError(f"PixelGain.gain_map must be ({h}, {w}), got {list(g.shape)}")
+            return g.reshape(1, 1, h, w)
+        gen = torch.Generator().manual_seed(int(self.seed))
+        xi = torch.randn((h, w), generator=gen, dtype=torch.float64).to(like.device, like.dtype)
+        return (1.0 + _num(self.rms, like) * xi).clamp_min(0.0).view(1, 1, h, w)
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        state.samples = s * self.gain(s.shape[2], s.shape[3], s)
+        return state
+
+
+@dataclass
+class LensBlur(Term):
+    """Gaussian point-spread function of ``sigma`` px on the correlation samples: a pixel next to
+    a depth edge sums the returns of both surfaces, whose phasors mix into a depth between them
+    (flying pixels). ``sigma = 0`` leaves the samples as they are."""
+
+    sigma: float = 0.0
+    name: str = field(default="flying_pixels", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> LensBlur:
+        s = _check_range(self.sigma, "LensBlur.sigma", 0.0, strict=False, unit=" px")
+        if s > 10:
+            raise ValueError(f"LensBlur.sigma must be <= 10 px, got {s}")
+        return self
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        sig = _num(self.sigma, s)
+        if _as_float(self.sigma, "sigma") <= 0:
+            return state
+        r = max(1, math.ceil(3.0 * _as_float(self.sigma, "sigma")))
+        x = torch.arange(-r, r + 1, device=s.device, dtype=s.dtype)
+        k = torch.exp(-0.5 * (x / sig) ** 2)
+        k = k / k.sum()
+        b, n, h, w = s.shape
+        y = F.pad(s.reshape(b * n, 1, h, w), (r, r, r, r), mode="replicate")
+        y = F.conv2d(y, k.view(1, 1, 1, -1))
+        y = F.conv2d(y, k.view(1, 1, -1, 1))
+        state.samples = y.reshape(b, n, h, w)
+        return state
+
+
+@dataclass
+class Saturation(Term):
+    """Full-well / anti-blooming limit: every sample is clipped at ``level`` e-, softly over a
+    ``knee`` (e-; 0: a hard clip): ``level - knee softplus((level - R) / knee)``."""
+
+    level: float = 1e9
+    knee: float = 0.0
+    name: str = field(default="saturation", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> Saturation:
+        _check_range(self.level, "Saturation.level", 0.0, strict=True, unit=" e-")
+        _check_range(self.knee, "Saturation.knee", 0.0, strict=False, unit=" e-")
+        return self
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        lv = _num(self.level, s)
+        if _as_float(self.knee, "knee") > 0:
+            kn = _num(self.knee, s)
+            state.samples = lv - kn * F.softplus((lv - s) / kn)
+        else:
+            state.samples = torch.minimum(
+                s, lv if isinstance(lv, torch.Tensor) else s.new_tensor(lv)
+            )
+        sat = (s >= lv).any(dim=1, keepdim=True)
+        if state.saturated is None or state.saturated.shape != sat.shape:
+            state.saturated = sat if state.saturated is None else state.saturated | sat
+        else:
+            state.saturated = state.saturated | sat
+        return state
