@@ -11,6 +11,7 @@ from .. import constants as K
 from ..sim import Camera, SimState, depth_from_samples
 from .catalogue import build_term
 from .locate import Stat
+from .model import peak_samples, predict
 
 __all__ = ["describe_effect", "spectrum", "where"]
 
@@ -227,7 +228,10 @@ def describe_effect(name: str, model, obs, pred) -> dict:
         return {"rate_percent": r4(v["impulsive_pixels.rate"] * 100)}
     if name == "saturation":
         lv = v["saturation.level"]
-        peak = (pred.offset + pred.a0)[obs.known] * g
+        # the largest raw sample the model predicts without the clip
+        with torch.no_grad():
+            p0 = predict(model.without("saturation"), obs)
+        peak = peak_samples(model, p0, p0.mu_d, p0.a0)[obs.known] * g
         return {
             "level_e": r4(lv),
             "level_amplitude_units": r4(lv / g),

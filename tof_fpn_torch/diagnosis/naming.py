@@ -19,7 +19,7 @@ import torch
 from .. import constants as K
 from .catalogue import CATALOGUE, implemented
 from .fit import evaluate, fit
-from .model import CORE_SPECS, DiagnosisModel, predict
+from .model import CORE_SPECS, DiagnosisModel, peak_samples, predict
 
 __all__ = ["initial_values", "rank"]
 
@@ -96,10 +96,21 @@ def initial_values(name: str, model: DiagnosisModel, obs, ctx) -> list[dict]:
             return []
         return [{"impulsive_pixels.rate": r} for r in (1e-4, 1e-3, 1e-2)]
     if name == "saturation":
-        peak = ((p.offset + p.a0) * g)[ma]
-        return [
-            {"saturation.level": float(torch.quantile(peak, q))} for q in (0.5, 0.8, 0.95, 0.99)
-        ]
+        # the clip must touch some samples at the start, or the level's gradient is zero: levels
+        # at high quantiles of the largest predicted raw sample and of the largest sample that
+        # the observed amplitude and depth imply (a clipped pixel reads a smaller amplitude)
+        out = []
+        for peaks in (
+            peak_samples(model, p, p.mu_d, p.a0),
+            peak_samples(model, p, obs.m_d, obs.m_a),
+        ):
+            pk = (peaks * g)[ma & torch.isfinite(peaks)]
+            if pk.numel():
+                out += [
+                    {"saturation.level": float(torch.quantile(pk, q))}
+                    for q in K.DIAG_SATURATION_QUANTILES
+                ]
+        return out
     if name == "flying_pixels":
         return [{"flying_pixels.sigma": s} for s in (0.25, 0.4, 0.6, 0.85, 1.2)]
     if name == "phase_wrapping":
