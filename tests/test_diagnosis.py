@@ -23,7 +23,7 @@ from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
 from tof_fpn_torch.diagnosis import diagnose, load_model
 from tof_fpn_torch.io import Recording, SceneData, write_recording, write_scene
-from tof_fpn_torch.sim import Camera, Saturation, Simulation, synthetic_scene
+from tof_fpn_torch.sim import Camera, Multipath, Saturation, Simulation, synthetic_scene
 from tof_fpn_torch.sim.effects import CyclicError, FPNPattern, with_effect
 from tof_fpn_torch.sim.readout import ADC, Photons, ReadNoise, ReadoutFPN, ShotNoise
 
@@ -210,6 +210,18 @@ def test_planted_saturation_is_named_saturation():
     p = diag.report["effects"][0]["params"]
     assert p["level_e"] == pytest.approx(level, rel=0.15)
     assert 0.5 * share < p["share_of_pixels_clipped"] < 2 * share
+
+
+def test_planted_multipath_is_named_and_recovered():
+    """A 1 % diffuse second return delayed by 2.5 m (``Multipath``) is named ``multipath`` with
+    its strength and extra path recovered."""
+    rec, sd = _recording(Multipath(strength=0.01, extra_path=2.5), seed=7)
+    diag = diagnose(rec, sd, replicates=0)
+    assert diag.effects[:1] == ["multipath"], diag.report["verdict"]
+    p = diag.report["effects"][0]["params"]
+    assert p["strength_percent"] == pytest.approx(1.0, rel=0.2)
+    assert p["extra_path_m"] == pytest.approx(2.5, abs=0.3)
+    assert diag.report["fit"]["after"]["heldout_nll"] < diag.report["fit"]["before"]["heldout_nll"]
 
 
 def test_null_recording_gives_none():

@@ -231,6 +231,8 @@ DIAG_CANDIDATE_ITERS: int = 20
 #: quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
 #: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md)
 DIAG_SATURATION_QUANTILES: tuple[float, ...] = (0.9, 0.97, 0.99, 0.997)
+#: extra paths (shares of the unambiguous range) at which the multipath strength starts
+DIAG_MULTIPATH_PATH_SHARES: tuple[float, ...] = tuple((k + 0.5) / 8 for k in range(8))
 #: After a term is added, the next round re-fits only the candidates whose held-out gain was at
 #: least this many nats (at most ``DIAG_RETRY_MAX`` of them, best first).
 DIAG_RETRY_GAIN: float = 1.0

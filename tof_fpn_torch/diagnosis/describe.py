@@ -237,6 +237,11 @@ def describe_effect(name: str, model, obs, pred) -> dict:
             "level_amplitude_units": r4(lv / g),
             "share_of_pixels_clipped": r4(float((peak > lv).double().mean())),
         }
+    if name == "multipath":
+        return {
+            "strength_percent": r4(v["multipath.strength"] * 100),
+            "extra_path_m": r4(v["multipath.extra_path"]),
+        }
     if name == "flying_pixels":
         return {"psf_sigma_px": r4(v["flying_pixels.sigma"])}
     if name == "phase_wrapping":

@@ -111,6 +111,24 @@ def initial_values(name: str, model: DiagnosisModel, obs, ctx) -> list[dict]:
                     for q in K.DIAG_SATURATION_QUANTILES
                 ]
         return out
+    if name == "multipath":
+        # a weak second return X_m turns pixel p's phasor X_p by Im(X_m / X_p): the depth moves
+        # by strength * x_p, linear in the strength for each extra path on a grid
+        f = float(model.camera.modulation_frequency)
+        k = 4 * math.pi * f / K.SPEED_OF_LIGHT_AIR
+        rho = ctx.scene.reflectance[0, 0].to(torch.float64)
+        phi = p.mu_d * k
+        ok = torch.isfinite(phi) & torch.isfinite(p.a0)
+        m = torch.complex(p.a0 * torch.cos(phi), p.a0 * torch.sin(phi))[ok].mean()
+        ratio = (rho / rho.mean()) / torch.complex(p.a0 * torch.cos(phi), p.a0 * torch.sin(phi))
+        out = []
+        for share in K.DIAG_MULTIPATH_PATH_SHARES:
+            d_x = share * 2 * math.pi / k
+            x = torch.imag(ratio * m * complex(math.cos(k * d_x), math.sin(k * d_x))) / k
+            b = _ls(x[md], rd, wd)
+            if b > 0:
+                out.append({"multipath.strength": min(b, 0.5), "multipath.extra_path": d_x})
+        return out
     if name == "flying_pixels":
         return [{"flying_pixels.sigma": s} for s in (0.25, 0.4, 0.6, 0.85, 1.2)]
     if name == "phase_wrapping":
