@@ -238,9 +238,16 @@ def describe_effect(name: str, model, obs, pred) -> dict:
             "share_of_pixels_clipped": r4(float((peak > lv).double().mean())),
         }
     if name == "multipath":
+        # relayed / direct active light of every pixel (amplitudes, no phasor cancellation)
+        with torch.no_grad():
+            p0 = predict(model.without("multipath"), obs)
+        rho = obs.scene().reflectance[0, 0].to(torch.float64)
+        a0 = p0.a0
+        ratio = v["multipath.strength"] * (rho / rho.mean()) * a0.mean() / a0
         return {
             "strength_percent": r4(v["multipath.strength"] * 100),
             "extra_path_m": r4(v["multipath.extra_path"]),
+            "median_relay_to_direct": r4(float(ratio[obs.known].median())),
         }
     if name == "flying_pixels":
         return {"psf_sigma_px": r4(v["flying_pixels.sigma"])}
