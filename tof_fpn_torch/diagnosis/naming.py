@@ -106,10 +106,13 @@ def initial_values(name: str, model: DiagnosisModel, obs, ctx) -> list[dict]:
         ):
             pk = (peaks * g)[ma & torch.isfinite(peaks)]
             if pk.numel():
-                out += [
-                    {"saturation.level": float(torch.quantile(pk, q))}
-                    for q in K.DIAG_SATURATION_QUANTILES
-                ]
+                for q in K.DIAG_SATURATION_QUANTILES:
+                    lv = float(torch.quantile(pk, q))
+                    # a clip of noisy samples, averaged, is a knee about as wide as the noise
+                    out += [
+                        {"saturation.level": lv, "saturation.knee": f * math.sqrt(lv)}
+                        for f in K.DIAG_SATURATION_KNEES
+                    ]
         return out
     if name == "multipath":
         # a weak second return X_m turns pixel p's phasor X_p by Im(X_m / X_p): the depth moves
