@@ -260,6 +260,10 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
     var_d = (k_d * s / a0) ** 2 + obs.q_depth**2 / 12.0
     if "noise_floor" in model.effects:
         var_d = var_d + v["noise_floor.sigma"] ** 2
+    if "saturation" in model.effects:
+        # a pixel whose samples are all clipped has no phase: its depth is anywhere in [0, R),
+        # so its spread is at most that of a uniform over the range
+        var_d = torch.minimum(var_d, var_d.new_tensor(r_cam**2 / 12.0))
     sd_a = torch.sqrt(sd_a**2 + obs.q_amp**2 / 12.0)
     tau = v["pixel_gain.rms"] * mu_a if "pixel_gain" in model.effects else 0.0
     return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap)
