@@ -45,6 +45,7 @@ DETECTION = {
     "saturation": 0.01,  # share of pixels clipped
     "flying_pixels": 0.01,  # light leaked from each 4-neighbour (fraction)
     "phase_wrapping": 0.01,  # share of the scene beyond the range
+    "multipath": 0.01,  # relayed / direct active light, median pixel
 }
 UNITS = {
     "cyclic_error": "square-wave share",
@@ -58,6 +59,7 @@ UNITS = {
     "saturation": "pixel share",
     "flying_pixels": "leak per neighbour",
     "phase_wrapping": "scene share",
+    "multipath": "relayed / direct light",
 }
 FACTORS = (0.5, 1.0, 2.0, 4.0)
 SCENES = ("synthetic", "planar", "ramp")
@@ -92,6 +94,7 @@ def truth_value(effect: str, truth: dict):
         "saturation": truth.get("share_clipped"),
         "flying_pixels": 4 * truth.get("crosstalk", 0.0),
         "phase_wrapping": truth.get("range_m"),
+        "multipath": truth.get("relay_share"),
     }.get(effect)
 
 
@@ -120,6 +123,8 @@ def fitted_value(effect: str, params: dict, values: dict, frames: int):
         return 1 - math.erf(0.5 / (s * math.sqrt(2))) ** 2
     if effect == "phase_wrapping":
         return params["range_m"]
+    if effect == "multipath":
+        return params["median_relay_to_direct"]
     return None
 
 

@@ -31,6 +31,13 @@ Concealed effects (one at a time; ``magnitude`` in the unit given):
                       (phasor mixing at depth edges)
     phase_wrapping    modulation frequency raised so that a share ``magnitude`` of the scene lies
                       beyond the unambiguous range (the meta states the true frequency)
+    multipath         diffuse interreflection with the scene's geometry: pinhole camera (60 deg
+                      horizontal field), every point q of a coarse grid (every 4th pixel) sends
+                      the light it reflects (S_q d_q^2) to every point p with a softened inverse
+                      square 1 / (|P_q - P_p|^2 + (1 m)^2), over the path d_q + |P_q - P_p| + d_p
+                      (direct: 2 d_p); p returns it with its albedo. magnitude = median over the
+                      pixels of relayed / direct active light; truth also the light-weighted mean
+                      extra path (m)
 """
 
 from __future__ import annotations
@@ -52,7 +59,11 @@ EFFECTS = (
     "saturation",
     "flying_pixels",
     "phase_wrapping",
+    "multipath",
 )
+RELAY_STEP = 4  # px between the relaying points
+RELAY_SOFT_M = 1.0  # softening length of the inverse square (m)
+FIELD_OF_VIEW_DEG = 60.0  # horizontal
 
 
 def _correlation(square_share: float, samples: int = 1024) -> np.ndarray:
@@ -87,6 +98,34 @@ def _cyclic_truth(square_share: float, f: float, n: int = 4) -> float:
     r = C_AIR / (2 * f)
     err = (err + r / 2) % r - r / 2
     return float(err.max() - err.min())
+
+
+def _relay(d: np.ndarray, rho: np.ndarray, sig: np.ndarray, f: float):
+    """Relayed active light at every pixel (unnormalised): offset (H, W), complex modulated
+    part (H, W) with the phase of its path, and the light-weighted mean extra path (m)."""
+    h, w = d.shape
+    fx = (w / 2) / math.tan(math.radians(FIELD_OF_VIEW_DEG / 2))
+    yy, xx = np.mgrid[0:h, 0:w]
+    ray = np.stack([(xx - (w - 1) / 2) / fx, (yy - (h - 1) / 2) / fx, np.ones((h, w))], -1)
+    pts = d[..., None] * ray / np.linalg.norm(ray, axis=-1, keepdims=True)  # (H, W, 3), m
+    sub = (slice(RELAY_STEP // 2, None, RELAY_STEP),) * 2
+    pq, dq = pts[sub].reshape(-1, 3), d[sub].reshape(-1)
+    sent = (sig * d**2)[sub].reshape(-1)  # light each relaying point reflects (any unit)
+    k = 2 * np.pi * f / C_AIR  # phase per metre of path
+    dc = np.zeros(h * w)
+    z = np.zeros(h * w, dtype=np.complex128)
+    extra_num = 0.0
+    pp, dp = pts.reshape(-1, 3), d.reshape(-1)
+    for i0 in range(0, h * w, 4096):
+        sl = slice(i0, i0 + 4096)
+        r = np.linalg.norm(pp[sl, None] - pq[None], axis=-1)  # (P, Q)
+        wt = sent[None] / (r**2 + RELAY_SOFT_M**2)
+        path = dq[None] + r + dp[sl, None]
+        dc[sl] = wt.sum(1)
+        z[sl] = (wt * np.exp(1j * k * path)).sum(1)
+        extra_num += float((wt * (path - 2 * dp[sl, None])).sum())
+    extra = extra_num / float(dc.sum())
+    return dc.reshape(h, w) * rho, z.reshape(h, w) * rho, extra
 
 
 def generate(
@@ -180,6 +219,18 @@ def generate(
     else:
         wave = np.cos(arg)
     q = amb[None, None] + sig[None, None] * (1 + contrast * wave)
+    if effect == "multipath":
+        dc, z, extra = _relay(d, rho, sig, f)
+        scale = magnitude / np.median(dc / sig)
+        dc, z = dc * scale, z * scale
+        # the relayed light: offset dc, modulated part contrast |z| at the phase of z
+        q = (
+            q
+            + dc[None, None]
+            + contrast * np.real(z[None, None] * np.exp(1j * th)[None, :, None, None])
+        )
+        truth["relay_share"] = magnitude
+        truth["mean_extra_path_m"] = extra
     if effect == "flying_pixels":
         # every 4-neighbour leaks `magnitude` of its light (correlation samples add linearly)
         qp = np.pad(q, ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")

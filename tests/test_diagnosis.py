@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
 from tof_fpn_torch.diagnosis import diagnose, load_model
 from tof_fpn_torch.io import Recording, SceneData, write_recording, write_scene
-from tof_fpn_torch.sim import Camera, Simulation, synthetic_scene
+from tof_fpn_torch.sim import Camera, Multipath, Saturation, Simulation, synthetic_scene
 from tof_fpn_torch.sim.effects import CyclicError, FPNPattern, with_effect
 from tof_fpn_torch.sim.readout import ADC, Photons, ReadNoise, ReadoutFPN, ShotNoise
 
@@ -38,9 +39,10 @@ def _sim() -> Simulation:
     return Simulation(cam, [Photons(), ShotNoise(), fpn, ReadNoise(), ADC()])
 
 
-def _recording(term=None, seed: int = 0, frames: int = T):
+def _recording(term=None, seed: int = 0, frames: int = T, sim: Simulation | None = None):
     scene = synthetic_scene(H, W, seed=seed, depth_range=(0.6, 5.0))
-    sim = _sim() if term is None else with_effect(_sim(), term)
+    sim = _sim() if sim is None else sim
+    sim = sim if term is None else with_effect(sim, term)
     out = sim.run(scene, frames, seed=seed)
     depth = torch.where(out.depth > 0, out.depth, torch.full_like(out.depth, math.nan))
     rec = Recording(depth, out.amplitude, dict(META, amplitude_unit="DN"))
@@ -187,6 +189,39 @@ def test_planted_column_pattern_is_named_fpn_pattern():
     assert diag.effects[:1] == ["fpn_pattern"], diag.report["verdict"]
     p = diag.report["effects"][0]["params"]
     assert p["rms_columns_mm"] == pytest.approx(3.0, rel=0.3)
+
+
+def test_planted_saturation_is_named_saturation():
+    """A full-well clip of every sample (the camera's own full well out of the way) on the
+    brightest ~1.8 % of the pixels is named ``saturation``, not ``impulsive_pixels``: the
+    saturation level starts where the clip touches samples (docs/diagnosis.md)."""
+    scene = synthetic_scene(H, W, seed=7, depth_range=(0.6, 5.0))
+    sim = _sim()
+    sim = Simulation(replace(sim.camera, full_well=1e7), sim.terms)
+    peak = Photons().mean_samples(sim.camera, scene).amax(1).flatten().double()
+    levels = torch.unique(peak).flip(0)
+    shares = torch.stack([(peak > lv).double().mean() for lv in levels])
+    level = float(levels[int(torch.nonzero(shares > 0.01)[0])])
+    share = float((peak > level).double().mean())
+    assert 0.01 < share < 0.025
+    rec, sd = _recording(Saturation(level), seed=7, sim=sim)
+    diag = diagnose(rec, sd, replicates=0)
+    assert diag.effects[:1] == ["saturation"], diag.report["verdict"]
+    p = diag.report["effects"][0]["params"]
+    assert p["level_e"] == pytest.approx(level, rel=0.15)
+    assert 0.5 * share < p["share_of_pixels_clipped"] < 2 * share
+
+
+def test_planted_multipath_is_named_and_recovered():
+    """A 1 % diffuse second return delayed by 2.5 m (``Multipath``) is named ``multipath`` with
+    its strength and extra path recovered."""
+    rec, sd = _recording(Multipath(strength=0.01, extra_path=2.5), seed=7)
+    diag = diagnose(rec, sd, replicates=0)
+    assert diag.effects[:1] == ["multipath"], diag.report["verdict"]
+    p = diag.report["effects"][0]["params"]
+    assert p["strength_percent"] == pytest.approx(1.0, rel=0.2)
+    assert p["extra_path_m"] == pytest.approx(2.5, abs=0.3)
+    assert diag.report["fit"]["after"]["heldout_nll"] < diag.report["fit"]["before"]["heldout_nll"]
 
 
 def test_null_recording_gives_none():

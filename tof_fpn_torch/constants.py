@@ -228,6 +228,15 @@ DIAG_MIN_GAIN: float = 10.0
 DIAG_MIN_DAIC: float = 10.0
 #: Iterations of L-BFGS when a candidate term is fitted on the fitting half.
 DIAG_CANDIDATE_ITERS: int = 20
+#: quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
+#: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md)
+DIAG_SATURATION_QUANTILES: tuple[float, ...] = (0.9, 0.97, 0.99, 0.997)
+#: starting knees of the saturation term, in units of the shot noise at the level (sqrt e-),
+#: and the scale of its fitted knee (e-)
+DIAG_SATURATION_KNEES: tuple[float, ...] = (0.3, 1.0)
+DIAG_SATURATION_KNEE_SCALE: float = 100.0
+#: extra paths (shares of the unambiguous range) at which the multipath strength starts
+DIAG_MULTIPATH_PATH_SHARES: tuple[float, ...] = tuple((k + 0.5) / 8 for k in range(8))
 #: After a term is added, the next round re-fits only the candidates whose held-out gain was at
 #: least this many nats (at most ``DIAG_RETRY_MAX`` of them, best first).
 DIAG_RETRY_GAIN: float = 1.0

@@ -5,7 +5,8 @@ How a term enters (``Effect.enters``):
 
 * ``chain`` -- a deterministic simulator term in the noise-free chain whose decoded depth and
   amplitude are the model's means (``cyclic_error``, ``amplitude_bias``, ``vignetting``,
-  ``flying_pixels``, ``saturation``; ``fpn_pattern`` too, its profiles estimated in closed form);
+  ``flying_pixels``, ``saturation``, ``multipath``; ``fpn_pattern`` too, its profiles estimated in
+  closed form);
 * ``variance`` -- a change of the predicted spread (``noise_floor``: clock jitter adds its
   variance to every depth; ``pixel_gain``: a random gain per pixel adds ``(rms A)^2`` to the
   variance of the amplitude's temporal mean, the EMVA 1288 PRNU);
@@ -13,8 +14,8 @@ How a term enters (``Effect.enters``):
   (``impulsive_pixels``: a mixture with a uniform component);
 * ``wrap`` -- ``phase_wrapping``: the depth is folded into ``[0, R)``.
 
-``multipath`` is in the vocabulary but not implemented (it needs surface normals and a
-light-transport model of the scene; see docs/diagnosis.md).
+``multipath`` is the simplest diffuse model (a uniform relay of the scene-mean return, Fuchs 2010
+without the geometry of the scene; :class:`~tof_fpn_torch.sim.Multipath`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from ..sim import (
     FPNPattern,
     ImpulsivePixels,
     LensBlur,
+    Multipath,
     PhaseJitter,
     PixelGain,
     Saturation,
@@ -172,11 +174,15 @@ CATALOGUE: dict[str, Effect] = {
         ),
         Effect(
             "saturation",
-            (ParamSpec("saturation.level", "log", 1.0, "e-"),),
+            (
+                ParamSpec("saturation.level", "log", 1.0, "e-"),
+                ParamSpec("saturation.knee", "abs", K.DIAG_SATURATION_KNEE_SCALE, "e-"),
+            ),
             "chain",
             "saturation",
             ("amp_mean|raw", "depth_mean|raw"),
-            "full-well clip of the correlation samples",
+            "full-well clip of the correlation samples (a soft knee: the clip of noisy samples, "
+            "averaged)",
         ),
         Effect(
             "flying_pixels",
@@ -196,12 +202,15 @@ CATALOGUE: dict[str, Effect] = {
         ),
         Effect(
             "multipath",
-            (),
+            (
+                ParamSpec("multipath.strength", "abs", K.DIAG_SCALE_CYCLIC),
+                ParamSpec("multipath.extra_path", "abs", 1.0, "m"),
+            ),
             "chain",
-            None,
-            ("depth_mean|edge",),
-            "not implemented: needs surface normals and a light-transport model",
-            implemented=False,
+            "multipath",
+            ("depth_mean|amplitude", "depth_mean|depth", "amp_mean|amplitude"),
+            "diffuse interreflection: the scene-mean return, delayed by an extra path, added to "
+            "every pixel in proportion to its albedo",
         ),
     )
 }
@@ -251,7 +260,9 @@ def build_term(name: str, v: dict, model, *, for_chain: bool):
     if name == "flying_pixels":
         return LensBlur(v["flying_pixels.sigma"])
     if name == "saturation":
-        return Saturation(v["saturation.level"])
+        return Saturation(v["saturation.level"], v.get("saturation.knee", 0.0))
+    if name == "multipath":
+        return Multipath(v["multipath.strength"], v["multipath.extra_path"])
     if for_chain:
         return None
     if name == "temporal_drift":

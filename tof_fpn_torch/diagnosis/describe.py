@@ -11,6 +11,7 @@ from .. import constants as K
 from ..sim import Camera, SimState, depth_from_samples
 from .catalogue import build_term
 from .locate import Stat
+from .model import peak_samples, predict
 
 __all__ = ["describe_effect", "spectrum", "where"]
 
@@ -227,11 +228,29 @@ def describe_effect(name: str, model, obs, pred) -> dict:
         return {"rate_percent": r4(v["impulsive_pixels.rate"] * 100)}
     if name == "saturation":
         lv = v["saturation.level"]
-        peak = (pred.offset + pred.a0)[obs.known] * g
+        # the largest raw sample the model predicts without the clip
+        with torch.no_grad():
+            p0 = predict(model.without("saturation"), obs)
+        peak = peak_samples(model, p0, p0.mu_d, p0.a0)[obs.known] * g
+        knee = v.get("saturation.knee", 0.0)
+        # clipped: the largest sample reaches the knee (where the soft clip bends it by ~0.3 knee)
         return {
             "level_e": r4(lv),
+            "knee_e": r4(knee),
             "level_amplitude_units": r4(lv / g),
-            "share_of_pixels_clipped": r4(float((peak > lv).double().mean())),
+            "share_of_pixels_clipped": r4(float((peak > lv - knee).double().mean())),
+        }
+    if name == "multipath":
+        # relayed / direct active light of every pixel (amplitudes, no phasor cancellation)
+        with torch.no_grad():
+            p0 = predict(model.without("multipath"), obs)
+        rho = obs.scene().reflectance[0, 0].to(torch.float64)
+        a0 = p0.a0
+        ratio = v["multipath.strength"] * (rho / rho.mean()) * a0.mean() / a0
+        return {
+            "strength_percent": r4(v["multipath.strength"] * 100),
+            "extra_path_m": r4(v["multipath.extra_path"]),
+            "median_relay_to_direct": r4(float(ratio[obs.known].median())),
         }
     if name == "flying_pixels":
         return {"psf_sigma_px": r4(v["flying_pixels.sigma"])}

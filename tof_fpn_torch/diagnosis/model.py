@@ -40,7 +40,7 @@ from ..sim import (
 from .catalogue import CATALOGUE, build_term
 from .params import ParamSpec
 
-__all__ = ["CORE_SPECS", "DiagnosisModel", "Prediction", "predict"]
+__all__ = ["CORE_SPECS", "DiagnosisModel", "Prediction", "peak_samples", "predict"]
 
 #: always fitted
 CORE_SPECS: tuple[ParamSpec, ...] = (
@@ -260,9 +260,23 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
     var_d = (k_d * s / a0) ** 2 + obs.q_depth**2 / 12.0
     if "noise_floor" in model.effects:
         var_d = var_d + v["noise_floor.sigma"] ** 2
+    if "saturation" in model.effects:
+        # a pixel whose samples are all clipped has no phase: its depth is anywhere in [0, R),
+        # so its spread is at most that of a uniform over the range
+        var_d = torch.minimum(var_d, var_d.new_tensor(r_cam**2 / 12.0))
     sd_a = torch.sqrt(sd_a**2 + obs.q_amp**2 / 12.0)
     tau = v["pixel_gain.rms"] * mu_a if "pixel_gain" in model.effects else 0.0
     return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap)
+
+
+def peak_samples(model: DiagnosisModel, p, depth: torch.Tensor, amp: torch.Tensor):
+    """The largest of the N raw samples (DN) of pixels with ``depth`` (m) and amplitude ``amp``
+    (DN) on the predicted offset: ``offset + A max_n cos(phi + 2 pi n / N)``."""
+    n = model.camera.n_phases
+    phi = depth * (4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR)
+    th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
+    cmax = torch.cos(phi.unsqueeze(-1) + th).amax(-1)
+    return p.offset + amp * cmax
 
 
 def copy_values(v: dict) -> dict:

@@ -19,7 +19,7 @@ import torch
 from .. import constants as K
 from .catalogue import CATALOGUE, implemented
 from .fit import evaluate, fit
-from .model import CORE_SPECS, DiagnosisModel, predict
+from .model import CORE_SPECS, DiagnosisModel, peak_samples, predict
 
 __all__ = ["initial_values", "rank"]
 
@@ -96,10 +96,42 @@ def initial_values(name: str, model: DiagnosisModel, obs, ctx) -> list[dict]:
             return []
         return [{"impulsive_pixels.rate": r} for r in (1e-4, 1e-3, 1e-2)]
     if name == "saturation":
-        peak = ((p.offset + p.a0) * g)[ma]
-        return [
-            {"saturation.level": float(torch.quantile(peak, q))} for q in (0.5, 0.8, 0.95, 0.99)
-        ]
+        # the clip must touch some samples at the start, or the level's gradient is zero: levels
+        # at high quantiles of the largest predicted raw sample and of the largest sample that
+        # the observed amplitude and depth imply (a clipped pixel reads a smaller amplitude)
+        out = []
+        for peaks in (
+            peak_samples(model, p, p.mu_d, p.a0),
+            peak_samples(model, p, obs.m_d, obs.m_a),
+        ):
+            pk = (peaks * g)[ma & torch.isfinite(peaks)]
+            if pk.numel():
+                for q in K.DIAG_SATURATION_QUANTILES:
+                    lv = float(torch.quantile(pk, q))
+                    # a clip of noisy samples, averaged, is a knee about as wide as the noise
+                    out += [
+                        {"saturation.level": lv, "saturation.knee": f * math.sqrt(lv)}
+                        for f in K.DIAG_SATURATION_KNEES
+                    ]
+        return out
+    if name == "multipath":
+        # a weak second return X_m turns pixel p's phasor X_p by Im(X_m / X_p): the depth moves
+        # by strength * x_p, linear in the strength for each extra path on a grid
+        f = float(model.camera.modulation_frequency)
+        k = 4 * math.pi * f / K.SPEED_OF_LIGHT_AIR
+        rho = ctx.scene.reflectance[0, 0].to(torch.float64)
+        phi = p.mu_d * k
+        ok = torch.isfinite(phi) & torch.isfinite(p.a0)
+        m = torch.complex(p.a0 * torch.cos(phi), p.a0 * torch.sin(phi))[ok].mean()
+        ratio = (rho / rho.mean()) / torch.complex(p.a0 * torch.cos(phi), p.a0 * torch.sin(phi))
+        out = []
+        for share in K.DIAG_MULTIPATH_PATH_SHARES:
+            d_x = share * 2 * math.pi / k
+            x = torch.imag(ratio * m * complex(math.cos(k * d_x), math.sin(k * d_x))) / k
+            b = _ls(x[md], rd, wd)
+            if b > 0:
+                out.append({"multipath.strength": min(b, 0.5), "multipath.extra_path": d_x})
+        return out
     if name == "flying_pixels":
         return [{"flying_pixels.sigma": s} for s in (0.25, 0.4, 0.6, 0.85, 1.2)]
     if name == "phase_wrapping":

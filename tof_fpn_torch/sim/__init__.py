@@ -11,7 +11,8 @@ samples that the stages, experiments and diagnosis consume.
 * :mod:`~tof_fpn_torch.sim.effects` -- effects beyond the default chain, one named term each
   (the diagnosis catalogue): :class:`FPNPattern`, :class:`CyclicError`, :class:`AmplitudeBias`,
   :class:`Vignetting`, :class:`TemporalDrift`, :class:`PhaseJitter`, :class:`PixelGain`,
-  :class:`LensBlur`, :class:`Saturation` (the last four in :mod:`~tof_fpn_torch.sim.optics`);
+  :class:`LensBlur`, :class:`Saturation`, :class:`Multipath` (the last five in
+  :mod:`~tof_fpn_torch.sim.optics`);
   :func:`with_effect` inserts one in a chain.
 * :mod:`~tof_fpn_torch.sim.simulator` -- :class:`Simulation` (camera + list of terms) and
   :func:`simulate`.
@@ -54,7 +55,7 @@ from .effects import (
     TemporalDrift,
     with_effect,
 )
-from .optics import LensBlur, PixelGain, Saturation, Vignetting
+from .optics import LensBlur, Multipath, PixelGain, Saturation, Vignetting
 from .readout import ADC, ImpulsivePixels, ReadoutFPN, default_terms
 from .scenes import MATERIALS, Scene, planar_scene, synthetic_scene
 from .simulator import SimResult, Simulation, simulate
@@ -67,6 +68,7 @@ __all__ = [
     "CyclicError",
     "FPNPattern",
     "LensBlur",
+    "Multipath",
     "PhaseJitter",
     "PixelGain",
     "Saturation",

@@ -28,7 +28,9 @@ Catalogue name -> class: physics (parameters):
 * ``flying_pixels`` -> :class:`~tof_fpn_torch.sim.optics.LensBlur`: Gaussian PSF (px) mixing the
   returns of neighbouring pixels at depth edges;
 * ``saturation`` -> :class:`~tof_fpn_torch.sim.optics.Saturation`: full-well / anti-blooming clip
-  of every sample (e-, knee e-).
+  of every sample (e-, knee e-);
+* ``multipath`` -> :class:`~tof_fpn_torch.sim.optics.Multipath`: diffuse interreflection, a
+  second return of the scene-mean phasor delayed by an extra path (relative strength, m).
 
 ``impulsive_pixels`` is :class:`~tof_fpn_torch.sim.readout.ImpulsivePixels`; ``phase_wrapping`` is
 the decoder's own folding at ``camera.modulation_frequency`` (every simulation wraps).
@@ -59,6 +61,7 @@ __all__ = [
 #: position of every term in the chain (lower runs first)
 STAGE: dict[str, int] = {
     "photons": 0,
+    "multipath": 5,
     "fpn_pattern": 10,
     "temporal_drift": 12,
     "noise_floor": 13,

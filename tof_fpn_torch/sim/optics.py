@@ -2,8 +2,8 @@
 :mod:`tof_fpn_torch.sim.effects` for the catalogue table and the chain order).
 
 :class:`Vignetting` (lens fall-off), :class:`PixelGain` (PRNU), :class:`LensBlur` (the point-spread
-function that makes flying pixels at depth edges) and :class:`Saturation` (full-well clip). All act
-on the correlation samples in e-.
+function that makes flying pixels at depth edges), :class:`Saturation` (full-well clip) and
+:class:`Multipath` (diffuse interreflection in the scene). All act on the correlation samples in e-.
 """
 
 from __future__ import annotations
@@ -15,9 +15,10 @@ import torch
 import torch.nn.functional as F
 
 from .camera import _as_float, _check_range
+from .effects import _phase_per_metre, rotate_fundamental
 from .terms import SimState, Term, _num
 
-__all__ = ["LensBlur", "PixelGain", "Saturation", "Vignetting"]
+__all__ = ["LensBlur", "Multipath", "PixelGain", "Saturation", "Vignetting"]
 
 
 def _radius2(h: int, w: int, cx, cy, like: torch.Tensor) -> torch.Tensor:
@@ -162,4 +163,50 @@ class Saturation(Term):
             state.saturated = sat if state.saturated is None else state.saturated | sat
         else:
             state.saturated = state.saturated | sat
+        return state
+
+
+@dataclass
+class Multipath(Term):
+    """Diffuse multipath interference (after Fuchs 2010, "Multipath interference compensation in
+    time-of-flight camera images", simplified to a uniform relay): the light every scene point
+    reflects lights every other point a second time, over a longer path.
+
+    The relayed irradiance is taken uniform over the scene (a diffuse room): its phasor is the
+    scene-mean of the direct returns, delayed by ``extra_path`` (m, the mean extra distance the
+    relayed light travels). Pixel ``p`` reflects it with its own albedo, so its complex
+    correlation gets a second return
+
+        ``X_p += strength * (rho_p / mean rho) * mean_q(X_q) * exp(j 4 pi f extra_path / c_L)``
+
+    (``X``: the samples' first harmonic; the offset of the relayed light is added likewise).
+    ``strength`` is the relayed light relative to the direct light of a pixel of mean
+    reflectance (0: none). Dark and far pixels, whose direct return is weak, move most: towards
+    the phase of the relayed light, i.e. mostly further away.
+    """
+
+    strength: float = 0.0
+    extra_path: float = 0.0
+    name: str = field(default="multipath", init=False)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> Multipath:
+        b = _check_range(self.strength, "Multipath.strength", 0.0, strict=False)
+        if b > 1:
+            raise ValueError(f"Multipath.strength must be <= 1, got {b}")
+        _check_range(self.extra_path, "Multipath.extra_path", 0.0, strict=False, unit=" m")
+        return self
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        rho = state.scene.reflectance.to(device=s.device, dtype=s.dtype)
+        rel = rho / rho.mean(dim=(2, 3), keepdim=True).clamp_min(1e-12)
+        mean = s.mean(dim=(2, 3), keepdim=True)
+        psi = _num(self.extra_path, s) * _phase_per_metre(state.camera)
+        relay = rotate_fundamental(
+            mean, psi if isinstance(psi, torch.Tensor) else s.new_tensor(psi)
+        )
+        state.samples = s + _num(self.strength, s) * rel * relay
         return state
