@@ -167,6 +167,27 @@ def test_degenerate_inputs():
         Guided()(x, torch.ones(2, 1, 4, 4))
 
 
+@pytest.mark.parametrize(
+    "fn", ["bilateral", "guided", "bm3d", "sliding_dct", "hypothesis_bilateral", "lpa_ici"]
+)
+def test_functional_forms_refuse_a_bad_noise_constant_as_the_modules_do(fn):
+    x = 1.0 + 0.01 * torch.randn(1, 1, 24, 24, generator=torch.Generator().manual_seed(0))
+    a = torch.full_like(x, 100.0)
+    for bad in (-1.0, 0.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="k must be None or a finite number > 0"):
+            getattr(denoise, fn)(x, a, k=bad)
+
+
+def test_level_settings_are_checked_by_the_functions_too():
+    x = 1.0 + 0.01 * torch.randn(1, 1, 24, 24, generator=torch.Generator().manual_seed(0))
+    for f in (bilateral, guided):
+        for kw in ({"ratio": 1.0}, {"ratio": 0.5}, {"max_levels": 0}):
+            with pytest.raises(ValueError, match="ratio must be > 1 and max_levels >= 1"):
+                f(x, sigma=0.01, **kw)
+    with pytest.raises(ValueError, match="ratio must be > 1"):
+        Bilateral(ratio=0.5)
+
+
 def test_registry_names_get_and_errors():
     names = denoise.names()
     assert names[:2] == ["nlm", "bm3d"] and {"bilateral", "joint-bilateral", "guided"} <= set(names)

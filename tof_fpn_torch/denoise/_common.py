@@ -69,6 +69,12 @@ def prepare(
     return x, valid, amp
 
 
+def check_k(k: float | None) -> None:
+    """``k`` (the noise constant of ``sigma = k / A``) must be None (estimated) or finite > 0."""
+    if k is not None and not (k > 0.0 and k < float("inf")):
+        raise ValueError("k must be None or a finite number > 0, got " + str(k))
+
+
 def noise_map(
     x: torch.Tensor,
     valid: torch.Tensor,
@@ -78,6 +84,7 @@ def noise_map(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     """(B, 1, H, W) noise standard deviation (0 at invalid pixels), by the rules above."""
+    check_k(k)
     B, C, H, W = x.shape
     wk = wavelet.to(device=x.device, dtype=x.dtype)
     xz = torch.where(valid, x, torch.zeros_like(x))

@@ -16,12 +16,19 @@ import math
 
 import torch
 
-__all__ = ["blend", "levels"]
+__all__ = ["blend", "check_levels", "levels"]
+
+
+def check_levels(ratio: float, max_levels: int) -> None:
+    """``ratio`` > 1 (finite) and ``max_levels`` >= 1."""
+    if not (ratio > 1.0 and ratio < float("inf")) or max_levels < 1:
+        raise ValueError(f"ratio must be > 1 and max_levels >= 1, got {ratio}, {max_levels}")
 
 
 def levels(value: torch.Tensor, valid: torch.Tensor, ratio: float, max_levels: int) -> torch.Tensor:
     """(B, L) log-spaced levels spanning ``value`` (B, 1, H, W) over ``valid``; L is the same for
     the batch (at least 1, at most ``max_levels``)."""
+    check_levels(ratio, max_levels)
     B = value.shape[0]
     big = torch.full_like(value, math.inf)
     lo = torch.where(valid, value, big).flatten(1).amin(1)

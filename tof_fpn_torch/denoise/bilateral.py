@@ -33,8 +33,8 @@ import torch
 from kornia.filters import bilateral_blur, joint_bilateral_blur
 from torch import nn
 
-from ._common import check_window, noise_map, prepare, restore_invalid
-from ._levels import blend, levels
+from ._common import check_k, check_window, noise_map, prepare, restore_invalid
+from ._levels import blend, check_levels, levels
 from ._sigma import _estimate_sigma, hh_kernel
 from .nlm import _as_sigma
 
@@ -270,10 +270,8 @@ class Bilateral(nn.Module):
     ) -> None:
         super().__init__()
         _check(kernel_size, sigma_space, color, sigma_color)
-        if not (ratio > 1.0 and ratio < float("inf")) or max_levels < 1:
-            raise ValueError(f"ratio must be > 1 and max_levels >= 1, got {ratio}, {max_levels}")
-        if k is not None and not (k > 0 and k < float("inf")):
-            raise ValueError(f"k must be None or a finite number > 0, got {k!r}")
+        check_levels(ratio, max_levels)
+        check_k(k)
         self.kernel_size, self.sigma_space, self.color = kernel_size, float(sigma_space), color
         self.sigma_color, self.k, self.signed = sigma_color, k, signed
         self.ratio, self.max_levels = float(ratio), int(max_levels)

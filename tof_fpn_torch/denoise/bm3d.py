@@ -48,7 +48,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import fill_invalid, noise_map, prepare, restore_invalid
+from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
 from ._sigma import hh_kernel
 from .bm3d_core import bm3d_image
 from .nlm import _as_sigma
@@ -322,8 +322,7 @@ class BM3D(nn.Module):
             raise ValueError(f"max_blocks and tau are pairs, got {max_blocks!r}, {tau!r}")
         _check_params(block_size, step, search_radius, mb, tt, lam, mu2, features_wiener, beta)
         _check_transform(transform_ht, block_size)
-        if k is not None and not (float(k) > 0.0 and float(k) < float("inf")):
-            raise ValueError(f"k must be None or a finite number > 0, got {k!r}")
+        check_k(k)
         self.block_size = block_size
         self.step = step
         self.search_radius = search_radius

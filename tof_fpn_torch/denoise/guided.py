@@ -32,8 +32,8 @@ import torch
 from kornia.filters import guided_blur
 from torch import nn
 
-from ._common import check_window, fill_invalid, noise_map, prepare, restore_invalid
-from ._levels import blend, levels
+from ._common import check_k, check_window, fill_invalid, noise_map, prepare, restore_invalid
+from ._levels import blend, check_levels, levels
 from ._sigma import _estimate_sigma, hh_kernel
 from .nlm import _as_sigma
 
@@ -146,10 +146,8 @@ class Guided(nn.Module):
     ) -> None:
         super().__init__()
         _check(kernel_size, color, eps, guide)
-        if not (ratio > 1.0 and ratio < float("inf")) or max_levels < 1:
-            raise ValueError(f"ratio must be > 1 and max_levels >= 1, got {ratio}, {max_levels}")
-        if k is not None and not (k > 0 and k < float("inf")):
-            raise ValueError(f"k must be None or a finite number > 0, got {k!r}")
+        check_levels(ratio, max_levels)
+        check_k(k)
         self.kernel_size, self.color, self.eps, self.guide = kernel_size, color, eps, guide
         self.k, self.signed, self.ratio, self.max_levels = k, signed, float(ratio), max_levels
 

@@ -37,7 +37,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import noise_map, prepare, restore_invalid
+from ._common import check_k, noise_map, prepare, restore_invalid
 from ._sigma import _estimate_sigma, hh_kernel
 from .nlm import _as_sigma
 
@@ -250,8 +250,7 @@ class HypothesisBilateral(nn.Module):
         super().__init__()
         _check_ints(hypotheses=hypotheses, kernel_size=kernel_size, iterations=iterations)
         _check(hypotheses, kernel_size, sigma_space, color, sigma_color, trunc, iterations)
-        if k is not None and not (k > 0 and k < float("inf")):
-            raise ValueError(f"k must be None or a finite number > 0, got {k!r}")
+        check_k(k)
         self.hypotheses = hypotheses
         self.kernel_size = kernel_size
         self.sigma_space = float(sigma_space)

@@ -33,7 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import fill_invalid, noise_map, prepare, restore_invalid
+from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
 from ._sigma import hh_kernel
 from .nlm import _as_sigma
 
@@ -241,8 +241,7 @@ class LPAICI(nn.Module):
                 raise ValueError(f"{name} must be ints, got {v!r}")
         sc = [int(h) for h in scales]
         _check(directions, sc, order, float(gamma))
-        if k is not None and not (float(k) > 0.0 and float(k) < float("inf")):
-            raise ValueError(f"k must be None or a finite number > 0, got {k!r}")
+        check_k(k)
         self.directions = directions
         self.scales = sc
         self.order = order

@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import fill_invalid, noise_map, prepare, restore_invalid
+from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
 from ._sigma import hh_kernel
 from .bm3d_core import _aggregate, _synthesis, _transform, dct_matrix
 from .nlm import _as_sigma
@@ -176,8 +176,7 @@ class SlidingDCT(nn.Module):
             if isinstance(v, bool) or not isinstance(v, int):
                 raise ValueError(f"{name} must be an int, got {v!r}")
         _check(block_size, step, float(lam), float(beta))
-        if k is not None and not (float(k) > 0.0 and float(k) < float("inf")):
-            raise ValueError(f"k must be None or a finite number > 0, got {k!r}")
+        check_k(k)
         self.block_size = block_size
         self.step = step
         self.lam = float(lam)
