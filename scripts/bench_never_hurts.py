@@ -4,6 +4,7 @@ Usage::
 
     python scripts/bench_never_hurts.py                 # 2 scene kinds x 13 sizes x 3 noise levels
     python scripts/bench_never_hurts.py --quick         # fewer sizes (what tests/ runs)
+    python scripts/bench_never_hurts.py --striped       # striped frames: gated vs ungated stage
 
 Scenes: ``synthetic_scene`` (Fig. 7-like: edges, thin bars, a Siemens star, a grating) and
 ``planar_scene`` (Sec. IV-A boards), heights and widths from 32 to 640, odd and even, with eq. (2)
@@ -15,6 +16,7 @@ relative change of the mean valid depth. Must stay under 0.1 dB and 0.05 %.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import time
 from pathlib import Path
@@ -86,12 +88,64 @@ def run(sizes, noise=NOISE) -> dict:
     }
 
 
+STRIPED_SIZES = [(191, 255), (64, 127), (204, 204), (33, 511)]
+STRIPES = (0.0, 0.01, 0.03, 0.1)  # amplitude (m) at pi; 2/3 of it at 2 pi / 3
+
+
+def run_striped() -> dict:
+    """Frames with column stripes at pi and 2 pi / 3 (0 to 10 cm) on the two scene kinds, four
+    sizes, four noise levels: the PSNR change of the default (gated) stage and of the paper's
+    ungated one. The gated stage must not lose where the notch costs more than it gains."""
+    import math
+
+    gated, ungated = suppression_from_design(), suppression_from_design(gate=False)
+    rows = []
+    for (h, w), maker, k, a in itertools.product(
+        STRIPED_SIZES, (synthetic_scene, planar_scene), (0.1, 0.3, 1.0, 3.0), STRIPES
+    ):
+        sc = maker(h, w, seed=h + w)
+        gt, amp = sc.depth, sc.amplitude
+        g = torch.Generator().manual_seed(h * w)
+        x = add_depth_noise(gt, amp, k * k, amplitude_floor=5.0, generator=g)
+        n = torch.arange(w, dtype=torch.float32)
+        x = x + a * torch.cos(math.pi * n) + (2 / 3) * a * torch.cos(2 * math.pi / 3 * n + 0.7)
+        p0 = float(psnr(x, gt))
+        rows.append(
+            {
+                "size": [h, w],
+                "scene": maker.__name__,
+                "k": k,
+                "stripe": a,
+                "gated_db": float(psnr(gated(x, amp), gt)) - p0,
+                "ungated_db": float(psnr(ungated(x, amp), gt)) - p0,
+            }
+        )
+    return {"frames": len(rows), "rows": rows}
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="5 sizes")
+    p.add_argument("--striped", action="store_true", help="striped frames, gated vs ungated")
     p.add_argument("--json", type=Path)
     args = p.parse_args()
     t0 = time.perf_counter()
+    if args.striped:
+        res = run_striped()
+        for key in ("gated_db", "ungated_db"):
+            v = [r[key] for r in res["rows"]]
+            hurt = [r for r in res["rows"] if r[key] < -0.01]
+            print(
+                f"{key[:-3]:8s}: {res['frames']} striped frames, worst {min(v):+.2f} dB, "
+                f"{len(hurt)} lose > 0.01 dB, {sum(x > 0.05 for x in v)} gain > 0.05 dB, "
+                f"mean {sum(v) / len(v):+.2f} dB"
+            )
+            for r in hurt if key == "gated_db" else []:
+                print(f"   loses: {r}")
+        print(f"({time.perf_counter() - t0:.0f} s)")
+        if args.json:
+            args.json.write_text(json.dumps(res, indent=1))
+        return
     res = run(QUICK_SIZES if args.quick else SIZES)
     print(
         f"{res['frames']} stripe-free frames (sizes {'quick' if args.quick else 'all'}): "

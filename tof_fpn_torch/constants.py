@@ -61,6 +61,13 @@ GATE_REFERENCES: int = 8
 #: that is not worth what a notch does to the scene. (The real ADI wall's 7 um row stripe at pi is
 #: at ~0.03; the paper's synthetic FPN at ~0.3.)
 GATE_MIN_STRIPE: float = 0.1
+#: Side of the window (pixels) of the local mean of the squared finest diagonal wavelet
+#: coefficients that caps the gate's per-pixel noise power (runtime/gate.py, noise_power).
+GATE_NOISE_WINDOW: int = 3
+#: The stripe gate closes where the stage's estimated benefit is at most this share of its
+#: estimated cost (and opens fully where the benefit exceeds the cost): runtime/gate.py,
+#: risk_shrinkage.
+GATE_RISK_FLOOR: float = 0.5
 
 # --- stripe detection (analysis/stripes.py) ---------------------------------------------------
 #: Largest false-alarm probability of a reported periodic stripe (whole searched band).

@@ -24,6 +24,33 @@ Statistic, per image, orientation and notch (torch only, exportable: sums, no so
 
 ``g`` is per image, in ``[0, 1]``, the largest over notches and orientations; both ramps are
 linear, so the stage output ``x + g (stage(x) - x)`` is a continuous function of the input.
+
+**Worth it?** (:func:`risk_shrinkage`). A detected stripe is not yet a reason to filter: on a
+frame with little noise and much scene detail the notch costs the scene more than the stripes
+cost (a striped planar scene at ``k = 0.3``: -1.9 to -3.4 dB with the line test alone). The
+stage output ``y = x + g D`` (``D`` the ungated change: notch, then fusion with weight ``w_p``)
+changes the mean squared error against the truth ``t`` by (Stein's unbiased risk estimate for a
+linear smoother, with the stripes ``s`` as an error the smoother removes; derivation in
+docs/runtime.md)::
+
+    dMSE(g) = g^2 C - g B,   C = sum_p D_p^2,
+    B = 2 (1 - h_0) sum_p w_p sigma_p^2 + 2 P_s sum_p w_p
+
+``h_0`` the filter's centre tap (its product over the filtered dimensions), ``sigma_p^2`` the
+per-pixel noise, ``P_s`` the stripe power per pixel (from the line amplitudes above). ``dMSE`` is
+negative for every ``0 < g < B / C`` (smallest at ``B / (2 C)``). The gate is capped at
+``clamp((B / C - f) / (1 - f), 0, 1)`` (``f`` = :data:`~tof_fpn_torch.constants.GATE_RISK_FLOOR`,
+0.5): closed where the estimate says the full change costs at least twice what it gains, fully
+open where it gains more than it costs, and in between below ``B / C``, where the estimated risk
+falls. It is a veto, not a guarantee: the stripe power from one frame includes any scene
+content at the notch frequency (up to 2.8x too high on striped planar scenes) and misses the
+stripes' amplitude dependence (0.55x on the paper's eq. (10) data); a stricter cap (full open
+only from ``B >= 2 C``) cost the paper's own demo 2.8 dB (docs/runtime.md). The noise
+power ``sigma_p^2`` comes from the finest diagonal wavelet coefficients ``d`` (2 x 2
+``(x00 - x01 - x10 + x11) / 2``: zero for row and column stripes, planes and ramps): with an
+amplitude, the ToF law ``sigma_p = k / A_p`` with ``k`` the robust scale of ``d A``; without, the
+robust scale of ``d``; either capped by the local mean of ``d^2`` (3 x 3), which bounds it where
+the amplitude is near 0 and where scene detail is mistaken for noise.
 """
 
 from __future__ import annotations
@@ -34,7 +61,7 @@ import torch
 
 from .. import constants as K
 
-__all__ = ["false_alarm_threshold", "stripe_gate"]
+__all__ = ["false_alarm_threshold", "noise_power", "risk_shrinkage", "stripe_gate"]
 
 
 def false_alarm_threshold(references: int, probability: float = K.GATE_FALSE_ALARM) -> float:
@@ -119,6 +146,20 @@ def stripe_gate(
         >>> float(stripe_gate(striped, flat, None, [-1], [math.pi], 1.0))
         1.0
     """
+    return line_gate(x, filtered, valid, dims, notches, gain, min_stripe)[0]
+
+
+def line_gate(
+    x: torch.Tensor,
+    filtered: torch.Tensor,
+    valid: torch.Tensor | None,
+    dims: list[int],
+    notches: list[float],
+    gain: float,
+    min_stripe: float = K.GATE_MIN_STRIPE,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`stripe_gate` and the stripe power per pixel its line amplitudes imply (the sum over
+    notches and orientations of ``a^2`` at ``pi``, ``a^2 / 2`` below), both (B, 1, 1, 1)."""
     if x.dtype == torch.float16 or x.dtype == torch.bfloat16:  # power sums overflow in 16 bits
         x, filtered = x.float(), filtered.float()
     e = x - filtered
@@ -130,6 +171,7 @@ def stripe_gate(
     noise = (s / math.sqrt(max(gain, 1e-12))).flatten()
     t_a = false_alarm_threshold(K.GATE_REFERENCES)
     gate = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
+    power = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
     for d in dims:
         avg_dim = -2 if d == -1 else -1  # column stripes: average down the columns
         n = k.sum(avg_dim).to(x.dtype).flatten(1)  # (B, L)
@@ -142,9 +184,93 @@ def stripe_gate(
             t = p0 / ref.clamp_min(1e-30)
             scale = 1.0 if abs(w0 - math.pi) < 1e-9 else 0.5  # a cos at w0 < pi: half in w0
             amp = (p0 - ref).clamp_min(0.0).sqrt() / (scale * wsum)
+            power = power + amp * amp * (1.0 if scale == 1.0 else 0.5)  # per pixel
             g = ((t - t_a) / t_a).clamp(0.0, 1.0)
             if min_stripe > 0:
                 ratio = amp / noise
                 g = g * ((ratio - min_stripe) / min_stripe).clamp(0.0, 1.0)
             gate = torch.maximum(gate, g)
-    return gate.view(-1, 1, 1, 1)
+    return gate.view(-1, 1, 1, 1), power.view(-1, 1, 1, 1)
+
+
+def noise_power(
+    x: torch.Tensor, amplitude: torch.Tensor | None, valid: torch.Tensor | None
+) -> torch.Tensor:
+    """(B, 1, H, W) per-pixel noise power ``sigma_p^2`` of depth ``x`` (see the module docstring):
+    the ToF law ``(k / A_p)^2`` (or one robust level without an amplitude), capped by the local
+    mean of the squared finest diagonal wavelet coefficients; 0 where no 2 x 2 block is valid.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> amp = torch.linspace(20.0, 200.0, 128).expand(1, 1, 96, 128)
+        >>> x = 3.0 + torch.arange(128.0) * 0.01 + 2.0 / amp * torch.randn(1, 1, 96, 128, generator=g)
+        >>> ratio = noise_power(x, amp, None) / (2.0 / amp) ** 2
+        >>> 0.8 < float(ratio.median()) < 1.1
+        True
+    """
+    B, _, H, W = x.shape
+    if H < 2 or W < 2:
+        return torch.zeros_like(x)
+    ok = torch.isfinite(x) if valid is None else valid & torch.isfinite(x)
+    xv = torch.where(ok, x, torch.zeros_like(x))
+    d = 0.5 * (xv[..., :-1, :-1] - xv[..., :-1, 1:] - xv[..., 1:, :-1] + xv[..., 1:, 1:])
+    ok4 = ok[..., :-1, :-1] & ok[..., :-1, 1:] & ok[..., 1:, :-1] & ok[..., 1:, 1:]
+    d = torch.where(ok4, d, torch.zeros_like(d))
+    if amplitude is not None:
+        a = amplitude.to(x.dtype)
+        a = torch.where(ok, a, torch.zeros_like(a))
+        a4 = 0.25 * (a[..., :-1, :-1] + a[..., :-1, 1:] + a[..., 1:, :-1] + a[..., 1:, 1:])
+        k = _robust_scale(d * a4, ok4)
+        law = (k / a4.clamp_min(1e-30)) ** 2
+    else:
+        law = (_robust_scale(d, ok4) ** 2).expand_as(d)
+    m = ok4.to(x.dtype)
+    r = K.GATE_NOISE_WINDOW // 2
+    num = torch.nn.functional.avg_pool2d(d * d, K.GATE_NOISE_WINDOW, 1, r, False, False)
+    den = torch.nn.functional.avg_pool2d(m, K.GATE_NOISE_WINDOW, 1, r, False, False)
+    local = num / den.clamp_min(1e-30)
+    var = torch.where(ok4, torch.minimum(law, local), torch.zeros_like(d))
+    var = torch.cat([var, var[..., -1:, :]], -2)  # back to (H, W): repeat the last row, column
+    var = torch.cat([var, var[..., -1:]], -1)  # (no replicate Pad: ONNX opset 17 lacks it)
+    return torch.where(ok, var, torch.zeros_like(var))
+
+
+def risk_shrinkage(
+    change: torch.Tensor,
+    weight: torch.Tensor,
+    noise: torch.Tensor,
+    stripe_power: torch.Tensor,
+    centre: float,
+    valid: torch.Tensor | None,
+    floor: float = K.GATE_RISK_FLOOR,
+) -> torch.Tensor:
+    """(B, 1, 1, 1) cap ``clamp((B / C - floor) / (1 - floor), 0, 1)`` on the gate (module
+    docstring: the estimated risk change of the gated output ``x + g change`` is ``g^2 C - g B``;
+    closed while ``B <= floor C``, open from ``B >= C``, and never above ``B / C`` in between).
+
+    Args:
+        change: (B, 1, H, W) the ungated change ``D`` of the stage (notch, then fusion).
+        weight: (B, 1, H, W) the fusion's weight ``w_p`` of the notch output (1 without fusion).
+        noise: (B, 1, H, W) per-pixel noise power (:func:`noise_power`).
+        stripe_power: (B, 1, 1, 1) stripe power per pixel (:func:`line_gate`).
+        centre: the filter's centre tap (its product over the filtered dimensions).
+        valid: (B, 1, H, W) bool or None (all valid).
+        floor: the ratio ``B / C`` at and below which the gate is closed, in ``[0, 1)``.
+
+    Example:
+        >>> D = torch.full((2, 1, 4, 4), 0.1)
+        >>> w, n, ps = torch.ones_like(D), torch.full_like(D, 0.0075), torch.tensor([0.0, 1.0])
+        >>> g = risk_shrinkage(D, w, n, ps.view(2, 1, 1, 1), 0.5, None)  # B / C = 0.75 and 200
+        >>> [round(v, 4) for v in g.flatten().tolist()]
+        [0.5, 1.0]
+    """
+    ok = torch.isfinite(change) if valid is None else valid & torch.isfinite(change)
+    zero = torch.zeros_like(change)
+    d = torch.where(ok, change, zero)
+    w = torch.where(ok, weight.to(change.dtype), zero)
+    cost = (d * d).sum((-3, -2, -1), keepdim=True)
+    wsum = w.sum((-3, -2, -1), keepdim=True)
+    gain = 2.0 * (1.0 - centre) * (w * torch.where(ok, noise, zero)).sum((-3, -2, -1), True)
+    gain = gain + 2.0 * stripe_power.to(change.dtype) * wsum
+    cap = ((gain / cost.clamp_min(1e-30) - floor) / (1.0 - floor)).clamp(0.0, 1.0)
+    return torch.where(cost > 0, cap, torch.ones_like(cap))

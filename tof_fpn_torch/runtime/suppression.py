@@ -30,7 +30,7 @@ from ._checks import check_image, check_same_shape
 from ._stage import Float32Stage
 from .fpn_filter import FPNFilter, _tracing
 from .fusion import AmplitudeFusion
-from .gate import stripe_gate
+from .gate import line_gate, noise_power, risk_shrinkage
 from .trainable import TrainableFusion
 from .validity import all_valid, valid_mask
 
@@ -42,6 +42,14 @@ def _noise_gain(taps: torch.Tensor) -> float:
     d = taps.detach().double().clone()
     d[d.numel() // 2] -= 1.0
     return float((d * d).sum())
+
+
+def _centre(taps: torch.Tensor, dims: int) -> float:
+    """The tap that maps a pixel onto itself, to the power of the filtered dimensions (the largest
+    tap for an even length: an upper bound, which keeps the gate's risk estimate cautious)."""
+    t = taps.detach().double()
+    c = float(t[t.numel() // 2]) if t.numel() % 2 else float(t.max())
+    return c**dims
 
 
 class FPNSuppression(Float32Stage):
@@ -105,6 +113,7 @@ class FPNSuppression(Float32Stage):
         self.gate = bool(gate) and filter is not None
         self.min_stripe = float(min_stripe)
         self.noise_gain = 0.0 if filter is None else _noise_gain(filter.taps)
+        self.centre = 1.0 if filter is None else _centre(filter.taps, len(filter.dims))
         self.estimate = None  # the stripe estimate, when a builder made this module from data
 
     @property
@@ -165,9 +174,14 @@ class FPNSuppression(Float32Stage):
             out = fusion(filtered, depth, amplitude)
         if not self.gate:
             return out
-        g = stripe_gate(
+        g, stripes = line_gate(
             depth, filtered, mask, notch.dims, notch.notches, self.noise_gain, self.min_stripe
         )
+        weight = torch.ones_like(depth)
+        if fusion is not None and amplitude is not None:
+            weight = fusion(weight + 1.0, weight, amplitude) - 1.0
+        noise = noise_power(depth, amplitude, mask)
+        g = g * risk_shrinkage(out - depth, weight, noise, stripes, self.centre, mask)
         blended = depth + g.to(depth.dtype) * (out - depth)
         if mask is None:
             return blended
