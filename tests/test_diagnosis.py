@@ -212,6 +212,22 @@ def test_planted_saturation_is_named_saturation():
     assert 0.5 * share < p["share_of_pixels_clipped"] < 2 * share
 
 
+def test_fully_clipped_pixels_are_named_saturation_with_their_level():
+    """A full well below the darkest sample of ~1.8 % of the pixels (all N samples clipped; ~6 %
+    clipped in some sample) is named ``saturation`` with its level within 10 %: the model clips
+    the noisy samples (mean and variance of the clip; docs/diagnosis.md). The soft-knee model
+    before it put the level 22 % high."""
+    scene = synthetic_scene(H, W, seed=7, depth_range=(0.6, 5.0))
+    sim = _sim()
+    sim = Simulation(replace(sim.camera, full_well=1e7), sim.terms)
+    lo = Photons().mean_samples(sim.camera, scene).amin(1).flatten().double()
+    level = float(torch.quantile(lo, 0.98))
+    rec, sd = _recording(Saturation(level), seed=7, sim=sim)
+    diag = diagnose(rec, sd, replicates=0)
+    assert diag.effects[:1] == ["saturation"], diag.report["verdict"]
+    assert diag.report["effects"][0]["params"]["level_e"] == pytest.approx(level, rel=0.1)
+
+
 def test_planted_multipath_is_named_and_recovered():
     """A 1 % diffuse second return delayed by 2.5 m (``Multipath``) is named ``multipath`` with
     its strength and extra path recovered."""

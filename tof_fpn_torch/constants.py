@@ -229,12 +229,13 @@ DIAG_MIN_DAIC: float = 10.0
 #: Iterations of L-BFGS when a candidate term is fitted on the fitting half.
 DIAG_CANDIDATE_ITERS: int = 20
 #: quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
-#: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md)
-DIAG_SATURATION_QUANTILES: tuple[float, ...] = (0.9, 0.97, 0.99, 0.997)
-#: starting knees of the saturation term, in units of the shot noise at the level (sqrt e-),
-#: and the scale of its fitted knee (e-)
-DIAG_SATURATION_KNEES: tuple[float, ...] = (0.3, 1.0)
-DIAG_SATURATION_KNEE_SCALE: float = 100.0
+#: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md): a
+#: dense grid from the median to the 99.9th percentile, as a clip of many pixels predicts them
+#: to a fraction of their noise and the likelihood is sharp in the level
+DIAG_SATURATION_QUANTILES: tuple[float, ...] = tuple(1 - 0.5 * 0.002 ** (k / 23) for k in range(24))
+#: a pixel predicted within this many depth sd of the wrap boundary (0 / R) is predicted on the
+#: side of the boundary where its readings are (both decode from the same phase)
+DIAG_WRAP_BOUNDARY_SD: float = 4.0
 #: extra paths (shares of the unambiguous range) at which the multipath strength starts
 DIAG_MULTIPATH_PATH_SHARES: tuple[float, ...] = tuple((k + 0.5) / 8 for k in range(8))
 #: After a term is added, the next round re-fits only the candidates whose held-out gain was at

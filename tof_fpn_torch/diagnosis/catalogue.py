@@ -174,15 +174,12 @@ CATALOGUE: dict[str, Effect] = {
         ),
         Effect(
             "saturation",
-            (
-                ParamSpec("saturation.level", "log", 1.0, "e-"),
-                ParamSpec("saturation.knee", "abs", K.DIAG_SATURATION_KNEE_SCALE, "e-"),
-            ),
+            (ParamSpec("saturation.level", "log", 1.0, "e-"),),
             "chain",
             "saturation",
             ("amp_mean|raw", "depth_mean|raw"),
-            "full-well clip of the correlation samples (a soft knee: the clip of noisy samples, "
-            "averaged)",
+            "full-well clip of the noisy correlation samples (mean and variance of the clip of "
+            "each sample's shot and read noise)",
         ),
         Effect(
             "flying_pixels",
@@ -260,7 +257,7 @@ def build_term(name: str, v: dict, model, *, for_chain: bool):
     if name == "flying_pixels":
         return LensBlur(v["flying_pixels.sigma"])
     if name == "saturation":
-        return Saturation(v["saturation.level"], v.get("saturation.knee", 0.0))
+        return Saturation(v["saturation.level"])
     if name == "multipath":
         return Multipath(v["multipath.strength"], v["multipath.extra_path"])
     if for_chain:

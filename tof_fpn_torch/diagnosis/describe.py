@@ -232,13 +232,11 @@ def describe_effect(name: str, model, obs, pred) -> dict:
         with torch.no_grad():
             p0 = predict(model.without("saturation"), obs)
         peak = peak_samples(model, p0, p0.mu_d, p0.a0)[obs.known] * g
-        knee = v.get("saturation.knee", 0.0)
-        # clipped: the largest sample reaches the knee (where the soft clip bends it by ~0.3 knee)
+        # clipped: the largest noise-free sample reaches the level (clipped in half the frames)
         return {
             "level_e": r4(lv),
-            "knee_e": r4(knee),
             "level_amplitude_units": r4(lv / g),
-            "share_of_pixels_clipped": r4(float((peak > lv - knee).double().mean())),
+            "share_of_pixels_clipped": r4(float((peak > lv).double().mean())),
         }
     if name == "multipath":
         # relayed / direct active light of every pixel (amplitudes, no phasor cancellation)

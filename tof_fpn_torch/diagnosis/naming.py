@@ -106,13 +106,10 @@ def initial_values(name: str, model: DiagnosisModel, obs, ctx) -> list[dict]:
         ):
             pk = (peaks * g)[ma & torch.isfinite(peaks)]
             if pk.numel():
-                for q in K.DIAG_SATURATION_QUANTILES:
-                    lv = float(torch.quantile(pk, q))
-                    # a clip of noisy samples, averaged, is a knee about as wide as the noise
-                    out += [
-                        {"saturation.level": lv, "saturation.knee": f * math.sqrt(lv)}
-                        for f in K.DIAG_SATURATION_KNEES
-                    ]
+                out += [
+                    {"saturation.level": float(torch.quantile(pk, q))}
+                    for q in K.DIAG_SATURATION_QUANTILES
+                ]
         return out
     if name == "multipath":
         # a weak second return X_m turns pixel p's phasor X_p by Im(X_m / X_p): the depth moves
@@ -196,7 +193,10 @@ def rank(
                     if k in alt.values and k.split(".")[0] in ("photons", "camera", "readout_fpn")
                 }
             )
-            alt_start, alt_val = _try(alt, name, init, obs, ctx, nll_train)
+            # its starting values of the term from its own predictions (a level in e- of the
+            # robust model, not of the misfitting one)
+            alt_init = initial_values(name, alt, obs, ctx) if name == "saturation" else init
+            alt_start, alt_val = _try(alt, name, alt_init, obs, ctx, nll_train)
             if alt_start is not None and alt_val < val:
                 start = alt_start
         if start is None:

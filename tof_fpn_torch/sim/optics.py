@@ -148,6 +148,27 @@ class Saturation(Term):
         _check_range(self.knee, "Saturation.knee", 0.0, strict=False, unit=" e-")
         return self
 
+    def noisy_moments(
+        self, mean: torch.Tensor, var: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and variance of a hard clip ``min(R, level)`` of Gaussian samples ``R`` with
+        ``mean`` and ``var`` (e-, e-^2): what a camera that clips its *noisy* samples records on
+        average. With ``z = (level - mean) / sd``, ``Phi`` / ``phi`` the normal cdf / pdf and
+        ``Q = 1 - Phi``: ``E = level - sd (z Phi + phi)``, ``Var = sd^2 (Phi - z phi + z^2 Q -
+        (z Q - phi)^2)`` (the clipped part is a point mass at the level). The clip bends the mean
+        over about one noise sd and removes the noise of the clipped part: a fully clipped sample
+        reads the level with no variance."""
+        dt = mean.dtype
+        mu, v = mean.double(), var.double().clamp_min(1e-12)
+        sd = torch.sqrt(v)
+        lv = _num(self.level, mu)
+        z = (lv - mu) / sd
+        cdf, q = torch.special.ndtr(z), torch.special.ndtr(-z)
+        pdf = torch.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
+        m1 = z * q - pdf
+        var_u = (cdf - z * pdf + z * z * q - m1 * m1).clamp_min(0.0)
+        return (lv - sd * (z * cdf + pdf)).to(dt), (v * var_u).to(dt)
+
     def apply(self, state: SimState) -> SimState:
         s = state.samples
         lv = _num(self.level, s)
