@@ -168,11 +168,16 @@ def one(job: dict) -> dict:
     return out
 
 
-def jobs(effects, factors, n_seeds: int, nulls: int) -> list[dict]:
+def jobs(
+    effects, factors, n_seeds: int, nulls: int, offset: int = 0, null_offset: int = 0
+) -> list[dict]:
+    """Recordings ``n_seeds`` per effect and magnitude (the scene family cycles with the seed and
+    the magnitude: 6 seeds = 2 per scene family) and ``nulls`` null recordings; ``offset`` /
+    ``null_offset`` shift the seeds (new recordings on the same design)."""
     out = []
     for e in effects:
         for fi, fac in enumerate(factors):
-            for s in range(n_seeds):
+            for s in range(offset, offset + n_seeds):
                 kind = SCENES[(s + fi) % len(SCENES)]
                 out.append(
                     {
@@ -184,7 +189,7 @@ def jobs(effects, factors, n_seeds: int, nulls: int) -> list[dict]:
                         "seed": 1000 * fi + s,
                     }
                 )
-    for s in range(nulls):
+    for s in range(null_offset, null_offset + nulls):
         out.append(
             {
                 "effect": None,
@@ -298,7 +303,11 @@ def speed(out_path: str, threads: int = 2) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--pilot", nargs="+", default=None, metavar="EFFECT_OR_MAGNITUDE")
-    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--seeds", type=int, default=5, help="recordings per effect and magnitude")
+    ap.add_argument(
+        "--seed-offset", type=int, default=0, help="first seed (runs 1-5: 0; new recordings: > 0)"
+    )
+    ap.add_argument("--null-offset", type=int, default=0, help="first null seed (runs 1-5: 0)")
     ap.add_argument("--nulls", type=int, default=40)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--effects", nargs="*", default=list(EFFECTS))
@@ -326,7 +335,7 @@ def main() -> None:
             for i, m in enumerate(mags)
         ]
     else:
-        js = jobs(a.effects, a.factors, a.seeds, a.nulls)
+        js = jobs(a.effects, a.factors, a.seeds, a.nulls, a.seed_offset, a.null_offset)
     for j in js:
         j["size"] = list(a.size)
     t0 = time.time()

@@ -236,6 +236,16 @@ DIAG_SATURATION_QUANTILES: tuple[float, ...] = tuple(1 - 0.5 * 0.002 ** (k / 23)
 #: a pixel predicted within this many depth sd of the wrap boundary (0 / R) is predicted on the
 #: side of the boundary where its readings are (both decode from the same phase)
 DIAG_WRAP_BOUNDARY_SD: float = 4.0
+#: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
+#: view (deg), near-field length (m), the step (px) between its source patches, and how many
+#: relay matrices are kept
+MULTIPATH_FIELD_OF_VIEW_DEG: float = 70.0
+MULTIPATH_NEAR_FIELD_M: float = 1.0
+MULTIPATH_RELAY_STEP: int = 8
+RELAY_CACHE_SIZE: int = 2
+#: the diagnosis profiles the scene relay over these fields of view (deg) and near fields (m)
+DIAG_MULTIPATH_FIELDS_OF_VIEW: tuple[float, ...] = (50.0, 70.0, 90.0)
+DIAG_MULTIPATH_NEAR_FIELDS: tuple[float, ...] = (0.3, 1.0, 3.0)
 #: extra paths (shares of the unambiguous range) at which the multipath strength starts
 DIAG_MULTIPATH_PATH_SHARES: tuple[float, ...] = tuple((k + 0.5) / 8 for k in range(8))
 #: After a term is added, the next round re-fits only the candidates whose held-out gain was at

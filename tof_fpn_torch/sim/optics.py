@@ -14,8 +14,10 @@ from dataclasses import dataclass, field
 import torch
 import torch.nn.functional as F
 
+from .. import constants as K
 from .camera import _as_float, _check_range
 from .effects import _phase_per_metre, rotate_fundamental
+from .relay import scene_relay
 from .terms import SimState, Term, _num
 
 __all__ = ["LensBlur", "Multipath", "PixelGain", "Saturation", "Vignetting"]
@@ -204,10 +206,21 @@ class Multipath(Term):
     ``strength`` is the relayed light relative to the direct light of a pixel of mean
     reflectance (0: none). Dark and far pixels, whose direct return is weak, move most: towards
     the phase of the relayed light, i.e. mostly further away.
+
+    ``scene_relay`` adds the relay *within the visible scene*, with its geometry
+    (:mod:`tof_fpn_torch.sim.relay`): the scene is back-projected through a pinhole of horizontal
+    field of view ``field_of_view`` (deg), every scene point relays the light it reflects to
+    every other with a Lambertian inverse square (near-field length ``near_field``, m) over its
+    own extra path; ``scene_relay`` is the relay efficiency (1: every pair of points facing each
+    other). The uniform part then stands for light relayed from outside the field of view.
     """
 
     strength: float = 0.0
     extra_path: float = 0.0
+    scene_relay: float = 0.0
+    field_of_view: float = K.MULTIPATH_FIELD_OF_VIEW_DEG
+    near_field: float = K.MULTIPATH_NEAR_FIELD_M
+    relay_step: int = K.MULTIPATH_RELAY_STEP
     name: str = field(default="multipath", init=False)
 
     def __post_init__(self) -> None:
@@ -218,6 +231,13 @@ class Multipath(Term):
         if b > 1:
             raise ValueError(f"Multipath.strength must be <= 1, got {b}")
         _check_range(self.extra_path, "Multipath.extra_path", 0.0, strict=False, unit=" m")
+        _check_range(self.scene_relay, "Multipath.scene_relay", 0.0, strict=False)
+        fov = _check_range(self.field_of_view, "Multipath.field_of_view", 0.0, strict=True)
+        if fov >= 180.0:
+            raise ValueError(f"Multipath.field_of_view must be < 180 deg, got {fov}")
+        _check_range(self.near_field, "Multipath.near_field", 0.0, strict=True, unit=" m")
+        if int(self.relay_step) != self.relay_step or self.relay_step < 1:
+            raise ValueError(f"Multipath.relay_step must be an integer >= 1, got {self.relay_step}")
         return self
 
     def apply(self, state: SimState) -> SimState:
@@ -229,5 +249,26 @@ class Multipath(Term):
         relay = rotate_fundamental(
             mean, psi if isinstance(psi, torch.Tensor) else s.new_tensor(psi)
         )
-        state.samples = s + _num(self.strength, s) * rel * relay
+        out = s + _num(self.strength, s) * rel * relay
+        if not (isinstance(self.scene_relay, (int, float)) and self.scene_relay == 0):
+            out = out + _num(self.scene_relay, s) * self.relayed(s, state)
+        state.samples = out
         return state
+
+    def relayed(self, samples: torch.Tensor, state: SimState) -> torch.Tensor:
+        """The light relayed within the visible scene at unit ``scene_relay`` (samples' unit)."""
+        sc = state.scene
+        per = samples.shape[0] // sc.depth.shape[0]
+        parts = [
+            scene_relay(
+                samples[i * per : (i + 1) * per],
+                sc.depth[i, 0],
+                sc.reflectance[i, 0],
+                float(self.field_of_view),
+                float(self.near_field),
+                int(self.relay_step),
+                _phase_per_metre(state.camera),
+            )
+            for i in range(sc.depth.shape[0])
+        ]
+        return torch.cat(parts, 0)
