@@ -39,7 +39,7 @@ DETECTION = {
     "fpn_pattern": 2.0,  # rms of the column / row delays, mm
     "vignetting": 0.02,  # light lost at the far corner (fraction)
     "temporal_drift": 1.0,  # drift over the recording, mm
-    "noise_floor": 4.0,  # clock jitter, mm rms
+    "noise_floor": 8.0,  # clock jitter, mm rms (4 before run 6: restated, docs/diagnosis.md)
     "pixel_gain": 0.01,  # rms of the quantum efficiency (fraction)
     "impulsive_pixels": 0.001,  # share of random-telegraph pixels
     "saturation": 0.01,  # share of pixels clipped
@@ -161,6 +161,7 @@ def one(job: dict) -> dict:
     eff = job["effect"]
     if eff is not None:
         out["truth"] = truth_value(eff, truth)
+        out["truth_detail"] = {k: v for k, v in truth.items() if k != "effect"}
         hit = next((e for e in rep["effects"] if e["name"] == eff), None)
         out["fitted"] = (
             fitted_value(eff, hit["params"], diag.model.values, T) if hit is not None else None
@@ -235,7 +236,24 @@ def summary(results: list[dict]) -> dict:
             "median_relative_parameter_error": float(np.median(rec)) if rec else None,
             "median_heldout_nll_gain_per_observation": float(np.median(gain)) if gain else None,
             "wrong_top1": sorted({r["top1"] for r in rs if r["top1"] != e}),
+            "top1_by_scene": {
+                k: f"{sum(r['top1'] == e for r in rs if r['scene'] == k)}/"
+                f"{sum(r['scene'] == k for r in rs)}"
+                for k in SCENES
+                if any(r["scene"] == k for r in rs)
+            },
         }
+        if e == "phase_wrapping":  # wrapped pixels clearly beyond the range, and their SNR
+            out[e]["scene_factor_top1_pixels_beyond_by_2sd_snr"] = [
+                [
+                    r["scene"],
+                    r["factor"],
+                    r["top1"],
+                    r["truth_detail"]["pixels_beyond_by_2_sd"],
+                    round(r["truth_detail"]["beyond_snr_median"], 2),
+                ]
+                for r in rs
+            ]
     nulls = [r for r in results if r["effect"] is None]
     out["null"] = {
         "recordings": len(nulls),

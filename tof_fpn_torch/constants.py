@@ -233,8 +233,8 @@ DIAG_CANDIDATE_ITERS: int = 20
 #: dense grid from the median to the 99.9th percentile, as a clip of many pixels predicts them
 #: to a fraction of their noise and the likelihood is sharp in the level
 DIAG_SATURATION_QUANTILES: tuple[float, ...] = tuple(1 - 0.5 * 0.002 ** (k / 23) for k in range(24))
-#: a pixel predicted within this many depth sd of the wrap boundary (0 / R) is predicted on the
-#: side of the boundary where its readings are (both decode from the same phase)
+#: a pixel that the model moves to within this many depth sd of the wrap boundary (0 / R), its
+#: scene depth not that close, is predicted on the side where its readings are (same phase)
 DIAG_WRAP_BOUNDARY_SD: float = 4.0
 #: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
 #: view (deg), near-field length (m), the step (px) between its source patches, and how many

@@ -282,10 +282,14 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
         # so its spread is at most that of a uniform over the range
         var_d = torch.minimum(var_d, var_d.new_tensor(r_cam**2 / 12.0))
     if wrap is None:
-        # a reading within a few sd of the wrap boundary decodes as often near 0 as near R (a
-        # clip that pins the phase to a sample's direction reads exactly there): such a pixel
-        # is predicted on the side of the 0 / R boundary where its readings are
-        near = (dev_to_boundary(mu_d, r_cam) < K.DIAG_WRAP_BOUNDARY_SD * var_d.sqrt()) & obs.known
+        # a reading that the model itself moves to within a few sd of the wrap boundary (a clip
+        # that pins the phase to a sample's direction reads exactly there) decodes as often near
+        # 0 as near R: such a pixel is predicted on the side where its readings are. Not where
+        # the scene itself is near the boundary: there a reading near 0 instead of near R is
+        # what phase wrapping looks like
+        lim = K.DIAG_WRAP_BOUNDARY_SD * var_d.sqrt()
+        near = (dev_to_boundary(mu_d, r_cam) < lim) & (dev_to_boundary(d_true, r_cam) >= lim)
+        near &= obs.known
         alt = mu_d + r_cam * torch.round((obs.m_d - mu_d) / r_cam)
         mu_d = torch.where(near, alt, mu_d)
     sd_a = torch.sqrt(sd_a**2 + obs.q_amp**2 / 12.0)
