@@ -100,3 +100,19 @@ def test_multipath_scene_relay_is_linear_and_off_by_default():
     assert torch.allclose(two, 2 * one, rtol=1e-9, atol=1e-9)
     with pytest.raises(ValueError, match="field_of_view"):
         Multipath(field_of_view=180.0)
+
+
+def test_scene_relay_uses_at_most_the_maximum_number_of_sources():
+    """``relay_step`` is a minimum: a large image is relayed from at most
+    ``MULTIPATH_MAX_SOURCES`` source patches (memory and time stay bounded)."""
+    from tof_fpn_torch import constants as K
+    from tof_fpn_torch.sim import relay
+
+    cam = Camera()
+    scene = synthetic_scene(40, 60, seed=2, depth_range=(0.6, 4.0))
+    act = Photons().mean_samples(cam, scene).double()
+    relay._CACHE.clear()
+    Multipath(scene_relay=0.01, relay_step=1).apply(SimState(cam, scene, act, None))
+    ((wgt, *_),) = relay._CACHE.values()
+    assert 0.5 * K.MULTIPATH_MAX_SOURCES < wgt.shape[0] <= K.MULTIPATH_MAX_SOURCES
+    assert wgt.shape[1] == 40 * 60

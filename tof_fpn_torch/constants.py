@@ -242,6 +242,7 @@ DIAG_WRAP_BOUNDARY_SD: float = 4.0
 MULTIPATH_FIELD_OF_VIEW_DEG: float = 70.0
 MULTIPATH_NEAR_FIELD_M: float = 1.0
 MULTIPATH_RELAY_STEP: int = 8
+MULTIPATH_MAX_SOURCES: int = 300
 RELAY_CACHE_SIZE: int = 2
 #: the diagnosis profiles the scene relay over these fields of view (deg) and near fields (m)
 DIAG_MULTIPATH_FIELDS_OF_VIEW: tuple[float, ...] = (50.0, 70.0, 90.0)

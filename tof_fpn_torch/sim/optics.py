@@ -212,7 +212,9 @@ class Multipath(Term):
     field of view ``field_of_view`` (deg), every scene point relays the light it reflects to
     every other with a Lambertian inverse square (near-field length ``near_field``, m) over its
     own extra path; ``scene_relay`` is the relay efficiency (1: every pair of points facing each
-    other). The uniform part then stands for light relayed from outside the field of view.
+    other; ``relay_step``: px between the source patches, raised so that at most
+    ``MULTIPATH_MAX_SOURCES`` are used). The uniform part then stands for light relayed from
+    outside the field of view.
     """
 
     strength: float = 0.0
@@ -259,6 +261,10 @@ class Multipath(Term):
         """The light relayed within the visible scene at unit ``scene_relay`` (samples' unit)."""
         sc = state.scene
         per = samples.shape[0] // sc.depth.shape[0]
+        h, w = samples.shape[-2:]
+        # at least relay_step px between sources, and at most MULTIPATH_MAX_SOURCES of them
+        # (the relay is a (sources x pixels) matrix: memory and time grow with both)
+        step = max(int(self.relay_step), math.ceil(math.sqrt(h * w / K.MULTIPATH_MAX_SOURCES)))
         parts = [
             scene_relay(
                 samples[i * per : (i + 1) * per],
@@ -266,7 +272,7 @@ class Multipath(Term):
                 sc.reflectance[i, 0],
                 float(self.field_of_view),
                 float(self.near_field),
-                int(self.relay_step),
+                step,
                 _phase_per_metre(state.camera),
             )
             for i in range(sc.depth.shape[0])
