@@ -30,7 +30,8 @@ Concealed effects (one at a time; ``magnitude`` in the unit given):
     flying_pixels     optical crosstalk: every 4-neighbour adds ``magnitude`` of its light
                       (phasor mixing at depth edges)
     phase_wrapping    modulation frequency raised so that a share ``magnitude`` of the scene lies
-                      beyond the unambiguous range (the meta states the true frequency)
+                      beyond the unambiguous range (the meta states the true frequency); truth
+                      also how far beyond (median), the wrapped pixels' depth noise and SNR
     multipath         diffuse interreflection with the scene's geometry: pinhole camera (60 deg
                       horizontal field), every point q of a coarse grid (every 4th pixel) sends
                       the light it reflects (S_q d_q^2) to every point p with a softened inverse
@@ -164,6 +165,19 @@ def generate(
         truth["share_beyond"] = float((d >= truth["range_m"]).mean())
     sig = k_sig * rho / d**2  # e- of the modulated light per sample (before contrast)
     amb = bg * rho
+    if effect == "phase_wrapping":
+        # how far the wrapped pixels lie beyond the range, against their own depth noise (what
+        # decides whether a wrap can be seen: a reading within its noise of 0 / R is either)
+        beyond = d >= truth["range_m"]
+        a_e = contrast * sig[beyond]
+        s_e = np.sqrt(2 * (amb[beyond] + sig[beyond] + read_e**2 + gain**2 / 12) / n)
+        sd_d = C_AIR / (4 * np.pi * f) * s_e / a_e
+        excess = d[beyond] - truth["range_m"]
+        truth["beyond_excess_m_median"] = float(np.median(excess))
+        truth["beyond_depth_sd_m_median"] = float(np.median(sd_d))
+        # pixels that read on the near side of 0 in >= 98 % of the frames
+        truth["pixels_beyond_by_2_sd"] = int((excess >= 2 * sd_d).sum())
+        truth["beyond_snr_median"] = float(np.median(a_e / s_e))
     if effect == "vignetting":
         cx, cy = rng.uniform(-0.05, 0.05) * w, rng.uniform(-0.05, 0.05) * h
         corner = max(

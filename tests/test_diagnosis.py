@@ -23,7 +23,14 @@ from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
 from tof_fpn_torch.diagnosis import diagnose, load_model
 from tof_fpn_torch.io import Recording, SceneData, write_recording, write_scene
-from tof_fpn_torch.sim import Camera, Multipath, Saturation, Simulation, synthetic_scene
+from tof_fpn_torch.sim import (
+    Camera,
+    Multipath,
+    Saturation,
+    SimState,
+    Simulation,
+    synthetic_scene,
+)
 from tof_fpn_torch.sim.effects import CyclicError, FPNPattern, with_effect
 from tof_fpn_torch.sim.readout import ADC, Photons, ReadNoise, ReadoutFPN, ShotNoise
 
@@ -210,6 +217,39 @@ def test_planted_saturation_is_named_saturation():
     p = diag.report["effects"][0]["params"]
     assert p["level_e"] == pytest.approx(level, rel=0.15)
     assert 0.5 * share < p["share_of_pixels_clipped"] < 2 * share
+
+
+def test_fully_clipped_pixels_are_named_saturation_with_their_level():
+    """A full well below the darkest sample of ~1.8 % of the pixels (all N samples clipped; ~6 %
+    clipped in some sample) is named ``saturation`` with its level within 10 %: the model clips
+    the noisy samples (mean and variance of the clip; docs/diagnosis.md). The soft-knee model
+    before it put the level 22 % high."""
+    scene = synthetic_scene(H, W, seed=7, depth_range=(0.6, 5.0))
+    sim = _sim()
+    sim = Simulation(replace(sim.camera, full_well=1e7), sim.terms)
+    lo = Photons().mean_samples(sim.camera, scene).amin(1).flatten().double()
+    level = float(torch.quantile(lo, 0.98))
+    rec, sd = _recording(Saturation(level), seed=7, sim=sim)
+    diag = diagnose(rec, sd, replicates=0)
+    assert diag.effects[:1] == ["saturation"], diag.report["verdict"]
+    assert diag.report["effects"][0]["params"]["level_e"] == pytest.approx(level, rel=0.1)
+
+
+def test_planted_scene_relay_is_named_multipath_with_its_relayed_light():
+    """Multipath with the scene's own geometry (``Multipath(scene_relay=...)``: 60 deg field,
+    1 m near field, neither on the diagnosis' grid) is named ``multipath`` and the relayed /
+    direct light of the median pixel is recovered within 25 %."""
+    term = Multipath(scene_relay=0.05, field_of_view=60.0, near_field=1.0)
+    rec, sd = _recording(term, seed=7)
+    diag = diagnose(rec, sd, replicates=0)
+    assert diag.effects[:1] == ["multipath"], diag.report["verdict"]
+    cam = replace(_sim().camera, ambient_irradiance=0.0)
+    scene = synthetic_scene(H, W, seed=7, depth_range=(0.6, 5.0))
+    act = Photons().mean_samples(cam, scene).double()
+    relayed = term.relayed(act, SimState(cam, scene, act, None)).mean(1)[0] * 0.05
+    truth = float((relayed / act.mean(1)[0]).median())
+    got = diag.report["effects"][0]["params"]["median_relay_to_direct"]
+    assert got == pytest.approx(truth, rel=0.25)
 
 
 def test_planted_multipath_is_named_and_recovered():

@@ -236,12 +236,24 @@ DIAG_MIN_DAIC: float = 10.0
 #: Iterations of L-BFGS when a candidate term is fitted on the fitting half.
 DIAG_CANDIDATE_ITERS: int = 20
 #: quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
-#: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md)
-DIAG_SATURATION_QUANTILES: tuple[float, ...] = (0.9, 0.97, 0.99, 0.997)
-#: starting knees of the saturation term, in units of the shot noise at the level (sqrt e-),
-#: and the scale of its fitted knee (e-)
-DIAG_SATURATION_KNEES: tuple[float, ...] = (0.3, 1.0)
-DIAG_SATURATION_KNEE_SCALE: float = 100.0
+#: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md): a
+#: dense grid from the median to the 99.9th percentile, as a clip of many pixels predicts them
+#: to a fraction of their noise and the likelihood is sharp in the level
+DIAG_SATURATION_QUANTILES: tuple[float, ...] = tuple(1 - 0.5 * 0.002 ** (k / 23) for k in range(24))
+#: a pixel that the model moves to within this many depth sd of the wrap boundary (0 / R), its
+#: scene depth not that close, is predicted on the side where its readings are (same phase)
+DIAG_WRAP_BOUNDARY_SD: float = 4.0
+#: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
+#: view (deg), near-field length (m), the step (px) between its source patches, and how many
+#: relay matrices are kept
+MULTIPATH_FIELD_OF_VIEW_DEG: float = 70.0
+MULTIPATH_NEAR_FIELD_M: float = 1.0
+MULTIPATH_RELAY_STEP: int = 8
+MULTIPATH_MAX_SOURCES: int = 300
+RELAY_CACHE_SIZE: int = 2
+#: the diagnosis profiles the scene relay over these fields of view (deg) and near fields (m)
+DIAG_MULTIPATH_FIELDS_OF_VIEW: tuple[float, ...] = (50.0, 70.0, 90.0)
+DIAG_MULTIPATH_NEAR_FIELDS: tuple[float, ...] = (0.3, 1.0, 3.0)
 #: extra paths (shares of the unambiguous range) at which the multipath strength starts
 DIAG_MULTIPATH_PATH_SHARES: tuple[float, ...] = tuple((k + 0.5) / 8 for k in range(8))
 #: After a term is added, the next round re-fits only the candidates whose held-out gain was at

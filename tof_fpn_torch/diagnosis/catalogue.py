@@ -14,8 +14,10 @@ How a term enters (``Effect.enters``):
   (``impulsive_pixels``: a mixture with a uniform component);
 * ``wrap`` -- ``phase_wrapping``: the depth is folded into ``[0, R)``.
 
-``multipath`` is the simplest diffuse model (a uniform relay of the scene-mean return, Fuchs 2010
-without the geometry of the scene; :class:`~tof_fpn_torch.sim.Multipath`).
+``multipath`` is diffuse interreflection (:class:`~tof_fpn_torch.sim.Multipath`): the relay
+within the visible scene from its back-projected geometry (field of view and near-field length
+profiled on a grid, its efficiency fitted) plus a uniform relay of the scene-mean return (Fuchs
+2010 without geometry) for light from outside the view.
 """
 
 from __future__ import annotations
@@ -174,15 +176,12 @@ CATALOGUE: dict[str, Effect] = {
         ),
         Effect(
             "saturation",
-            (
-                ParamSpec("saturation.level", "log", 1.0, "e-"),
-                ParamSpec("saturation.knee", "abs", K.DIAG_SATURATION_KNEE_SCALE, "e-"),
-            ),
+            (ParamSpec("saturation.level", "log", 1.0, "e-"),),
             "chain",
             "saturation",
             ("amp_mean|raw", "depth_mean|raw"),
-            "full-well clip of the correlation samples (a soft knee: the clip of noisy samples, "
-            "averaged)",
+            "full-well clip of the noisy correlation samples (mean and variance of the clip of "
+            "each sample's shot and read noise)",
         ),
         Effect(
             "flying_pixels",
@@ -205,12 +204,14 @@ CATALOGUE: dict[str, Effect] = {
             (
                 ParamSpec("multipath.strength", "abs", K.DIAG_SCALE_CYCLIC),
                 ParamSpec("multipath.extra_path", "abs", 1.0, "m"),
+                ParamSpec("multipath.scene_relay", "abs", K.DIAG_SCALE_CYCLIC),
             ),
             "chain",
             "multipath",
             ("depth_mean|amplitude", "depth_mean|depth", "amp_mean|amplitude"),
-            "diffuse interreflection: the scene-mean return, delayed by an extra path, added to "
-            "every pixel in proportion to its albedo",
+            "diffuse interreflection: light relayed within the visible scene (its 3-D geometry, "
+            "inverse square, own paths) plus a uniform relay of the scene-mean return from "
+            "outside the view, each reflected with the pixel's albedo",
         ),
     )
 }
@@ -260,9 +261,15 @@ def build_term(name: str, v: dict, model, *, for_chain: bool):
     if name == "flying_pixels":
         return LensBlur(v["flying_pixels.sigma"])
     if name == "saturation":
-        return Saturation(v["saturation.level"], v.get("saturation.knee", 0.0))
+        return Saturation(v["saturation.level"])
     if name == "multipath":
-        return Multipath(v["multipath.strength"], v["multipath.extra_path"])
+        return Multipath(
+            v["multipath.strength"],
+            v["multipath.extra_path"],
+            scene_relay=v.get("multipath.scene_relay", 0.0),
+            field_of_view=v.get("multipath.field_of_view", K.MULTIPATH_FIELD_OF_VIEW_DEG),
+            near_field=v.get("multipath.near_field", K.MULTIPATH_NEAR_FIELD_M),
+        )
     if for_chain:
         return None
     if name == "temporal_drift":

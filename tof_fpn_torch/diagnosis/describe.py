@@ -4,6 +4,7 @@ term's parameters mean in physical units."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
@@ -232,26 +233,17 @@ def describe_effect(name: str, model, obs, pred) -> dict:
         with torch.no_grad():
             p0 = predict(model.without("saturation"), obs)
         peak = peak_samples(model, p0, p0.mu_d, p0.a0)[obs.known] * g
-        knee = v.get("saturation.knee", 0.0)
-        # clipped: the largest sample reaches the knee (where the soft clip bends it by ~0.3 knee)
+        # the chance that a pixel's largest sample, with its shot and read noise, is clipped in
+        # a frame, averaged over the pixels
+        sd = torch.sqrt(peak.clamp_min(0) + v["camera.read_noise"] ** 2)
+        clipped = torch.special.ndtr((peak - lv) / sd)
         return {
             "level_e": r4(lv),
-            "knee_e": r4(knee),
             "level_amplitude_units": r4(lv / g),
-            "share_of_pixels_clipped": r4(float((peak > lv - knee).double().mean())),
+            "share_of_pixels_clipped": r4(float(clipped.double().mean())),
         }
     if name == "multipath":
-        # relayed / direct active light of every pixel (amplitudes, no phasor cancellation)
-        with torch.no_grad():
-            p0 = predict(model.without("multipath"), obs)
-        rho = obs.scene().reflectance[0, 0].to(torch.float64)
-        a0 = p0.a0
-        ratio = v["multipath.strength"] * (rho / rho.mean()) * a0.mean() / a0
-        return {
-            "strength_percent": r4(v["multipath.strength"] * 100),
-            "extra_path_m": r4(v["multipath.extra_path"]),
-            "median_relay_to_direct": r4(float(ratio[obs.known].median())),
-        }
+        return _describe_multipath(model, obs, v, r4)
     if name == "flying_pixels":
         return {"psf_sigma_px": r4(v["flying_pixels.sigma"])}
     if name == "phase_wrapping":
@@ -264,3 +256,29 @@ def describe_effect(name: str, model, obs, pred) -> dict:
             ),
         }
     return {}
+
+
+def _describe_multipath(model, obs, v: dict, r4) -> dict:
+    """Relayed / direct active light of every pixel (offsets: no phasor cancellation)."""
+    from ..sim import Photons
+
+    cam = replace(model.camera, ambient_irradiance=0.0)
+    scene = obs.scene()
+    with torch.no_grad():
+        act = Photons(responsivity=1.0).mean_samples(cam, scene).to(torch.float64)
+        term = build_term("multipath", v, model, for_chain=True)
+        direct = act.mean(1)[0]
+        rho = scene.reflectance[0, 0].to(torch.float64)
+        uniform = v["multipath.strength"] * (rho / rho.mean()) * direct.mean()
+        geo = v.get("multipath.scene_relay", 0.0)
+        inner = geo * term.relayed(act, SimState(cam, scene, act, None)).mean(1)[0]
+    ratio = (uniform + inner) / direct
+    return {
+        "strength_percent": r4(v["multipath.strength"] * 100),
+        "extra_path_m": r4(v["multipath.extra_path"]),
+        "scene_relay_efficiency_percent": r4(geo * 100),
+        "field_of_view_deg": r4(v.get("multipath.field_of_view", K.MULTIPATH_FIELD_OF_VIEW_DEG)),
+        "near_field_m": r4(v.get("multipath.near_field", K.MULTIPATH_NEAR_FIELD_M)),
+        "median_relay_to_direct": r4(float(ratio[obs.known].median())),
+        "median_scene_relay_to_direct": r4(float((inner / direct)[obs.known].median())),
+    }

@@ -34,7 +34,6 @@ _ELECTRONS = (
     "readout_fpn.sin_2pi3",
     "readout_fpn.cos_pi",
     "saturation.level",
-    "saturation.knee",
     "amplitude_bias.reference",
 )
 

@@ -226,6 +226,7 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
     amb_irr = v.get("camera.ambient_irradiance", cam.ambient_irradiance)
     samples = (units[0] + units[1] * amb_irr) * v["photons.responsivity"]
     state = SimState(cam, scene, samples, None)
+    sample_var = None  # per-sample noise variance (e-^2) when the clip has changed it
     chain = [(STAGE.get(_TERM_OF[e], 50), e) for e in model.effects]
     chain.append((STAGE["readout_fpn"], "_readout_fpn"))
     for _, e in sorted(chain):
@@ -233,11 +234,19 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
             state.samples = _baseline_fpn(state.samples, v)
             continue
         t = build_term(e, v, model, for_chain=True)
-        if t is not None:
+        if e == "saturation":
+            # the camera clips its noisy samples: the clip of the shot and read noise of each
+            # sample, averaged (its mean bends over ~1 sd; the clipped part has no noise)
+            var_e = state.samples.clamp_min(0) + v["camera.read_noise"] ** 2
+            state.samples, sample_var = t.noisy_moments(state.samples, var_e)
+        elif t is not None:
             state = t.apply(state)
     g = v["camera.conversion_gain"]
     dn = state.samples / g
-    depth, a0, offset = depth_from_samples(dn, float(cam.modulation_frequency))
+    if sample_var is None:
+        depth, a0, offset = depth_from_samples(dn, float(cam.modulation_frequency))
+    else:  # fully clipped pixels have equal samples: decoded without a 0 / 0 in the gradient
+        depth, a0, offset = _decode_flat_safe(dn, float(cam.modulation_frequency))
     f64 = torch.float64
     depth, a0, offset = depth[0, 0].to(f64), a0[0, 0].to(f64), offset[0, 0].to(f64)
     d_true = obs.scene_depth
@@ -252,21 +261,84 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
     if "phase_wrapping" in model.effects:
         wrap = v["phase_wrapping.range"]
         mu_d = torch.remainder(mu_d, wrap)
-    var = offset.clamp_min(0) / g + (v["camera.read_noise"] / g) ** 2 + 1.0 / 12.0
-    s = torch.sqrt(2.0 * var / cam.n_phases)
     a0 = a0.clamp_min(1e-9)
-    mu_a, sd_a = _rician(a0, s)
     k_d = K.SPEED_OF_LIGHT_AIR / (4 * math.pi * float(cam.modulation_frequency))
-    var_d = (k_d * s / a0) ** 2 + obs.q_depth**2 / 12.0
+    if sample_var is None:
+        var = offset.clamp_min(0) / g + (v["camera.read_noise"] / g) ** 2 + 1.0 / 12.0
+        s = torch.sqrt(2.0 * var / cam.n_phases)
+        mu_a, sd_a = _rician(a0, s)
+        var_d = (k_d * s / a0) ** 2
+    else:
+        s_perp, s_par = _clipped_noise(dn, sample_var / g**2 + 1.0 / 12.0)
+        s = torch.sqrt(0.5 * (s_perp**2 + s_par**2))
+        mu_a, sd_a = _rician(a0, s)
+        sd_a = sd_a * s_par / s
+        var_d = (k_d * s_perp / a0) ** 2
+    var_d = var_d + obs.q_depth**2 / 12.0
     if "noise_floor" in model.effects:
         var_d = var_d + v["noise_floor.sigma"] ** 2
     if "saturation" in model.effects:
         # a pixel whose samples are all clipped has no phase: its depth is anywhere in [0, R),
         # so its spread is at most that of a uniform over the range
         var_d = torch.minimum(var_d, var_d.new_tensor(r_cam**2 / 12.0))
+    if wrap is None:
+        # a reading that the model itself moves to within a few sd of the wrap boundary (a clip
+        # that pins the phase to a sample's direction reads exactly there) decodes as often near
+        # 0 as near R: such a pixel is predicted on the side where its readings are. Not where
+        # the scene itself is near the boundary: there a reading near 0 instead of near R is
+        # what phase wrapping looks like
+        lim = K.DIAG_WRAP_BOUNDARY_SD * var_d.sqrt()
+        near = (dev_to_boundary(mu_d, r_cam) < lim) & (dev_to_boundary(d_true, r_cam) >= lim)
+        near &= obs.known
+        alt = mu_d + r_cam * torch.round((obs.m_d - mu_d) / r_cam)
+        mu_d = torch.where(near, alt, mu_d)
     sd_a = torch.sqrt(sd_a**2 + obs.q_amp**2 / 12.0)
     tau = v["pixel_gain.rms"] * mu_a if "pixel_gain" in model.effects else 0.0
     return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap)
+
+
+def _phasor(dn: torch.Tensor):
+    """``Re X_1``, ``Im X_1`` (1, 1, H, W; float64), the DFT weights (exact zeros), and where
+    the samples are flat (X_1 = 0)."""
+    n = dn.shape[1]
+    th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
+    c, sn = torch.cos(th), torch.sin(th)
+    c, sn = [torch.where(x.abs() < 1e-12, torch.zeros_like(x), x).view(1, n, 1, 1) for x in (c, sn)]
+    d = dn.to(torch.float64)
+    re, im = (d * c).sum(1, keepdim=True), -(d * sn).sum(1, keepdim=True)
+    return re, im, c, sn, (re == 0) & (im == 0)
+
+
+def _decode_flat_safe(dn: torch.Tensor, f: float):
+    """Eq. (1) like :func:`~tof_fpn_torch.sim.depth_from_samples` (depth, amplitude, offset),
+    with a finite gradient where the samples are all equal (amplitude 0, depth 0)."""
+    re, im, _, _, flat = _phasor(dn)
+    re_s = torch.where(flat, torch.ones_like(re), re)  # the 0 / 0 branch never differentiated
+    phase = torch.remainder(torch.atan2(im, re_s), 2 * math.pi)
+    amp = torch.where(flat, torch.zeros_like(re), torch.hypot(re_s, im) * (2.0 / dn.shape[1]))
+    depth = phase * (K.SPEED_OF_LIGHT_AIR / (4 * math.pi * f))
+    return depth, amp, dn.to(torch.float64).mean(1, keepdim=True)
+
+
+def _clipped_noise(dn: torch.Tensor, var: torch.Tensor):
+    """Noise of ``(2/N) X_1`` across and along the phasor (each (H, W), DN) for samples ``dn``
+    (1, N, H, W) with unequal variances ``var`` (DN^2): the delta method through eq. (1). Equal
+    variances ``v`` give ``sqrt(2 v / N)`` for both; a flat pixel (no phasor) gets the mean."""
+    n = dn.shape[1]
+    re, im, c, sn, flat = _phasor(dn)
+    var = var.to(torch.float64)
+    mag = torch.sqrt(torch.where(flat, torch.ones_like(re), re * re + im * im))
+    # d phase / d R_n = -(Re sin + Im cos) / |X|^2, d |X| / d R_n = (Re cos - Im sin) / |X|
+    perp = (var * ((re * sn + im * c) / mag) ** 2).sum(1)[0]
+    par = (var * ((re * c - im * sn) / mag) ** 2).sum(1)[0]
+    iso = 0.5 * var.sum(1)[0]
+    perp, par = torch.where(flat[0, 0], iso, perp), torch.where(flat[0, 0], iso, par)
+    return torch.sqrt(perp) * (2.0 / n), torch.sqrt(par) * (2.0 / n)
+
+
+def dev_to_boundary(depth: torch.Tensor, r_cam: float) -> torch.Tensor:
+    """Distance (m) of ``depth`` to the nearest multiple of the unambiguous range ``r_cam``."""
+    return (depth - r_cam * torch.round(depth / r_cam)).abs()
 
 
 def peak_samples(model: DiagnosisModel, p, depth: torch.Tensor, amp: torch.Tensor):

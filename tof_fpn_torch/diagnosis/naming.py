@@ -106,13 +106,10 @@ def initial_values(name: str, model: DiagnosisModel, obs, ctx) -> list[dict]:
         ):
             pk = (peaks * g)[ma & torch.isfinite(peaks)]
             if pk.numel():
-                for q in K.DIAG_SATURATION_QUANTILES:
-                    lv = float(torch.quantile(pk, q))
-                    # a clip of noisy samples, averaged, is a knee about as wide as the noise
-                    out += [
-                        {"saturation.level": lv, "saturation.knee": f * math.sqrt(lv)}
-                        for f in K.DIAG_SATURATION_KNEES
-                    ]
+                out += [
+                    {"saturation.level": float(torch.quantile(pk, q))}
+                    for q in K.DIAG_SATURATION_QUANTILES
+                ]
         return out
     if name == "multipath":
         # a weak second return X_m turns pixel p's phasor X_p by Im(X_m / X_p): the depth moves
@@ -130,7 +127,31 @@ def initial_values(name: str, model: DiagnosisModel, obs, ctx) -> list[dict]:
             x = torch.imag(ratio * m * complex(math.cos(k * d_x), math.sin(k * d_x))) / k
             b = _ls(x[md], rd, wd)
             if b > 0:
-                out.append({"multipath.strength": min(b, 0.5), "multipath.extra_path": d_x})
+                out.append(
+                    {
+                        "multipath.strength": min(b, 0.5),
+                        "multipath.extra_path": d_x,
+                        "multipath.scene_relay": 0.0,
+                    }
+                )
+        # the relay within the scene: its depth shift per unit efficiency (a small one, linear)
+        # on a grid of fields of view and near-field lengths, least squares for the efficiency
+        eps = K.DIAG_SCALE_CYCLIC * 0.1
+        for fov in K.DIAG_MULTIPATH_FIELDS_OF_VIEW:
+            for near in K.DIAG_MULTIPATH_NEAR_FIELDS:
+                geo = {
+                    "multipath.strength": 0.0,
+                    "multipath.extra_path": 0.0,
+                    "multipath.scene_relay": eps,
+                    "multipath.field_of_view": fov,
+                    "multipath.near_field": near,
+                }
+                with torch.no_grad():
+                    pg = predict(model.with_effect("multipath", geo), obs, scene=ctx.scene)
+                x = ((pg.mu_d - p.mu_d) / eps)[md]
+                b = _ls(x, rd, wd)
+                if b > 0 and math.isfinite(b):
+                    out.append(dict(geo, **{"multipath.scene_relay": b}))
         return out
     if name == "flying_pixels":
         return [{"flying_pixels.sigma": s} for s in (0.25, 0.4, 0.6, 0.85, 1.2)]
@@ -196,7 +217,10 @@ def rank(
                     if k in alt.values and k.split(".")[0] in ("photons", "camera", "readout_fpn")
                 }
             )
-            alt_start, alt_val = _try(alt, name, init, obs, ctx, nll_train)
+            # its starting values of the term from its own predictions (a level in e- of the
+            # robust model, not of the misfitting one)
+            alt_init = initial_values(name, alt, obs, ctx) if name == "saturation" else init
+            alt_start, alt_val = _try(alt, name, alt_init, obs, ctx, nll_train)
             if alt_start is not None and alt_val < val:
                 start = alt_start
         if start is None:

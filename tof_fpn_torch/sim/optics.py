@@ -14,8 +14,10 @@ from dataclasses import dataclass, field
 import torch
 import torch.nn.functional as F
 
+from .. import constants as K
 from .camera import _as_float, _check_range
 from .effects import _phase_per_metre, rotate_fundamental
+from .relay import scene_relay
 from .terms import SimState, Term, _num
 
 __all__ = ["LensBlur", "Multipath", "PixelGain", "Saturation", "Vignetting"]
@@ -148,6 +150,27 @@ class Saturation(Term):
         _check_range(self.knee, "Saturation.knee", 0.0, strict=False, unit=" e-")
         return self
 
+    def noisy_moments(
+        self, mean: torch.Tensor, var: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Mean and variance of a hard clip ``min(R, level)`` of Gaussian samples ``R`` with
+        ``mean`` and ``var`` (e-, e-^2): what a camera that clips its *noisy* samples records on
+        average. With ``z = (level - mean) / sd``, ``Phi`` / ``phi`` the normal cdf / pdf and
+        ``Q = 1 - Phi``: ``E = level - sd (z Phi + phi)``, ``Var = sd^2 (Phi - z phi + z^2 Q -
+        (z Q - phi)^2)`` (the clipped part is a point mass at the level). The clip bends the mean
+        over about one noise sd and removes the noise of the clipped part: a fully clipped sample
+        reads the level with no variance."""
+        dt = mean.dtype
+        mu, v = mean.double(), var.double().clamp_min(1e-12)
+        sd = torch.sqrt(v)
+        lv = _num(self.level, mu)
+        z = (lv - mu) / sd
+        cdf, q = torch.special.ndtr(z), torch.special.ndtr(-z)
+        pdf = torch.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
+        m1 = z * q - pdf
+        var_u = (cdf - z * pdf + z * z * q - m1 * m1).clamp_min(0.0)
+        return (lv - sd * (z * cdf + pdf)).to(dt), (v * var_u).to(dt)
+
     def apply(self, state: SimState) -> SimState:
         s = state.samples
         lv = _num(self.level, s)
@@ -183,10 +206,23 @@ class Multipath(Term):
     ``strength`` is the relayed light relative to the direct light of a pixel of mean
     reflectance (0: none). Dark and far pixels, whose direct return is weak, move most: towards
     the phase of the relayed light, i.e. mostly further away.
+
+    ``scene_relay`` adds the relay *within the visible scene*, with its geometry
+    (:mod:`tof_fpn_torch.sim.relay`): the scene is back-projected through a pinhole of horizontal
+    field of view ``field_of_view`` (deg), every scene point relays the light it reflects to
+    every other with a Lambertian inverse square (near-field length ``near_field``, m) over its
+    own extra path; ``scene_relay`` is the relay efficiency (1: every pair of points facing each
+    other; ``relay_step``: px between the source patches, raised so that at most
+    ``MULTIPATH_MAX_SOURCES`` are used). The uniform part then stands for light relayed from
+    outside the field of view.
     """
 
     strength: float = 0.0
     extra_path: float = 0.0
+    scene_relay: float = 0.0
+    field_of_view: float = K.MULTIPATH_FIELD_OF_VIEW_DEG
+    near_field: float = K.MULTIPATH_NEAR_FIELD_M
+    relay_step: int = K.MULTIPATH_RELAY_STEP
     name: str = field(default="multipath", init=False)
 
     def __post_init__(self) -> None:
@@ -197,6 +233,13 @@ class Multipath(Term):
         if b > 1:
             raise ValueError(f"Multipath.strength must be <= 1, got {b}")
         _check_range(self.extra_path, "Multipath.extra_path", 0.0, strict=False, unit=" m")
+        _check_range(self.scene_relay, "Multipath.scene_relay", 0.0, strict=False)
+        fov = _check_range(self.field_of_view, "Multipath.field_of_view", 0.0, strict=True)
+        if fov >= 180.0:
+            raise ValueError(f"Multipath.field_of_view must be < 180 deg, got {fov}")
+        _check_range(self.near_field, "Multipath.near_field", 0.0, strict=True, unit=" m")
+        if int(self.relay_step) != self.relay_step or self.relay_step < 1:
+            raise ValueError(f"Multipath.relay_step must be an integer >= 1, got {self.relay_step}")
         return self
 
     def apply(self, state: SimState) -> SimState:
@@ -208,5 +251,30 @@ class Multipath(Term):
         relay = rotate_fundamental(
             mean, psi if isinstance(psi, torch.Tensor) else s.new_tensor(psi)
         )
-        state.samples = s + _num(self.strength, s) * rel * relay
+        out = s + _num(self.strength, s) * rel * relay
+        if not (isinstance(self.scene_relay, (int, float)) and self.scene_relay == 0):
+            out = out + _num(self.scene_relay, s) * self.relayed(s, state)
+        state.samples = out
         return state
+
+    def relayed(self, samples: torch.Tensor, state: SimState) -> torch.Tensor:
+        """The light relayed within the visible scene at unit ``scene_relay`` (samples' unit)."""
+        sc = state.scene
+        per = samples.shape[0] // sc.depth.shape[0]
+        h, w = samples.shape[-2:]
+        # at least relay_step px between sources, and at most MULTIPATH_MAX_SOURCES of them
+        # (the relay is a (sources x pixels) matrix: memory and time grow with both)
+        step = max(int(self.relay_step), math.ceil(math.sqrt(h * w / K.MULTIPATH_MAX_SOURCES)))
+        parts = [
+            scene_relay(
+                samples[i * per : (i + 1) * per],
+                sc.depth[i, 0],
+                sc.reflectance[i, 0],
+                float(self.field_of_view),
+                float(self.near_field),
+                step,
+                _phase_per_metre(state.camera),
+            )
+            for i in range(sc.depth.shape[0])
+        ]
+        return torch.cat(parts, 0)

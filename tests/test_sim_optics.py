@@ -1,0 +1,118 @@
+"""Optical terms of the simulator: the noisy-clip moments of ``Saturation``, the relay within
+the scene of ``Multipath``."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from tof_fpn_torch.sim import Camera, Multipath, Photons, Saturation, SimState, synthetic_scene
+from tof_fpn_torch.sim.relay import scene_relay
+
+
+def test_saturation_noisy_moments_match_monte_carlo():
+    """Mean and variance of a hard clip of Gaussian samples (none, partly and fully clipped) as
+    sampled; a fully clipped sample reads the level with no variance, an unclipped one is left
+    alone."""
+    level = 100.0
+    mean = torch.tensor([0.0, 90.0, 100.0, 110.0, 200.0, 1e5], dtype=torch.float64)
+    var = torch.tensor([100.0, 100.0, 400.0, 100.0, 100.0, 1e5], dtype=torch.float64)
+    m, v = Saturation(level).noisy_moments(mean, var)
+    gen = torch.Generator().manual_seed(0)
+    x = mean[:, None] + var.sqrt()[:, None] * torch.randn(
+        6, 400_000, generator=gen, dtype=torch.float64
+    )
+    c = x.clamp(max=level)
+    assert torch.allclose(m, c.mean(1), atol=0.05)
+    assert torch.allclose(v, c.var(1), rtol=0.02, atol=1e-6)
+    assert m[0] == mean[0] and abs(float(v[0]) - 100.0) < 1e-6
+    assert float(m[-1]) == level and float(v[-1]) == 0.0
+
+
+def test_saturation_noisy_moments_have_finite_gradients():
+    lv = torch.tensor(100.0, dtype=torch.float64, requires_grad=True)
+    mean = torch.tensor([0.0, 100.0, 1e6], dtype=torch.float64, requires_grad=True)
+    m, v = Saturation(lv).noisy_moments(mean, torch.full_like(mean, 100.0))
+    (m.sum() + v.sum()).backward()
+    assert torch.isfinite(lv.grad) and torch.isfinite(mean.grad).all()
+    assert float(lv.grad) > 0
+
+
+def _relay_by_loops(samples, depth, rho, fov, near, step, ppm):
+    """The scene relay written pair by pair (complex phasors): docs of sim.relay."""
+    n, h, w = samples.shape
+    f_px = (w / 2) / math.tan(math.radians(fov) / 2)
+    th = [2 * math.pi * k / n for k in range(n)]
+
+    def point(y, x):
+        ray = ((x - (w - 1) / 2) / f_px, (y - (h - 1) / 2) / f_px, 1.0)
+        norm = math.sqrt(sum(c * c for c in ray))
+        return [depth[y, x] * c / norm for c in ray]
+
+    out = torch.zeros_like(samples)
+    for py in range(h):
+        for px in range(w):
+            pp, z, dc = point(py, px), 0j, 0.0
+            for qy in range(step // 2, h, step):
+                for qx in range(step // 2, w, step):
+                    pq, dq = point(qy, qx), float(depth[qy, qx])
+                    r = math.dist(pp, pq)
+                    wt = dq * dq * (step / f_px) ** 2 / (math.pi * (r * r + near * near))
+                    s = [float(samples[k, qy, qx]) for k in range(n)]
+                    x1 = sum(s[k] * complex(math.cos(th[k]), -math.sin(th[k])) for k in range(n))
+                    psi = 0.5 * ppm * (r + float(depth[py, px]) - dq)
+                    z += wt * x1 * complex(math.cos(psi), math.sin(psi))
+                    dc += wt * sum(s) / n
+            for k in range(n):
+                val = dc + (2 / n) * (z.real * math.cos(th[k]) - z.imag * math.sin(th[k]))
+                out[k, py, px] = float(rho[py, px]) * val
+    return out
+
+
+def test_scene_relay_matches_the_pairwise_sum():
+    """The relay within the scene (matrix form, cached) equals the pair-by-pair sum of
+    Lambertian patches over their own extra paths."""
+    gen = torch.Generator().manual_seed(3)
+    h, w, n = 6, 8, 4
+    depth = 1.0 + 3.0 * torch.rand(h, w, generator=gen, dtype=torch.float64)
+    rho = 0.2 + 0.6 * torch.rand(h, w, generator=gen, dtype=torch.float64)
+    samples = 100 + 50 * torch.rand(1, n, h, w, generator=gen, dtype=torch.float64)
+    got = scene_relay(samples, depth, rho, 60.0, 0.5, 2, 0.84)
+    want = _relay_by_loops(samples[0], depth, rho, 60.0, 0.5, 2, 0.84)
+    assert torch.allclose(got[0], want, rtol=1e-4, atol=1e-4)
+
+
+def test_multipath_scene_relay_is_linear_and_off_by_default():
+    """``Multipath(scene_relay=b)`` adds ``b`` times the relay to the samples; with the defaults
+    the samples are unchanged."""
+    cam = Camera()
+    scene = synthetic_scene(24, 32, seed=1, depth_range=(0.6, 4.0))
+    act = Photons().mean_samples(cam, scene).double()
+
+    def run(term):
+        return term.apply(SimState(cam, scene, act.clone(), None)).samples
+
+    assert torch.equal(run(Multipath()), act)
+    one, two = run(Multipath(scene_relay=0.01)) - act, run(Multipath(scene_relay=0.02)) - act
+    assert float(one.abs().max()) > 0
+    assert torch.allclose(two, 2 * one, rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="field_of_view"):
+        Multipath(field_of_view=180.0)
+
+
+def test_scene_relay_uses_at_most_the_maximum_number_of_sources():
+    """``relay_step`` is a minimum: a large image is relayed from at most
+    ``MULTIPATH_MAX_SOURCES`` source patches (memory and time stay bounded)."""
+    from tof_fpn_torch import constants as K
+    from tof_fpn_torch.sim import relay
+
+    cam = Camera()
+    scene = synthetic_scene(40, 60, seed=2, depth_range=(0.6, 4.0))
+    act = Photons().mean_samples(cam, scene).double()
+    relay._CACHE.clear()
+    Multipath(scene_relay=0.01, relay_step=1).apply(SimState(cam, scene, act, None))
+    ((wgt, *_),) = relay._CACHE.values()
+    assert 0.5 * K.MULTIPATH_MAX_SOURCES < wgt.shape[0] <= K.MULTIPATH_MAX_SOURCES
+    assert wgt.shape[1] == 40 * 60

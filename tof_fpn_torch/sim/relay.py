@@ -1,0 +1,107 @@
+"""Diffuse interreflection within the visible scene: the relay operator of
+:class:`~tof_fpn_torch.sim.optics.Multipath`'s ``scene_relay`` part.
+
+Geometry: a pinhole camera with horizontal field of view ``fov`` (deg) and square pixels
+(focal length ``f_px = (W / 2) / tan(fov / 2)`` px); the ToF depth ``d_p`` is the radial distance
+along pixel ``p``'s ray, so the scene point is ``P_p = d_p u_p`` (``u_p``: unit ray). Every
+``step``-th pixel (both axes) stands for a source patch of area ``A_q = d_q^2 step^2 / f_px^2``
+(m^2, obliquity ignored). A Lambertian patch whose radiance is what pixel ``q`` measures sends
+``radiance A_q / (pi r^2)`` of irradiance to a point at distance ``r``; pixel ``p`` reads the
+irradiance it receives times its own reflectance, with the same camera constant as its direct
+light. So the samples of pixel ``p`` get, per sample ``n`` (first harmonic delayed by the extra
+path ``r_pq + d_p - d_q`` over the direct path ``2 d_q`` of the light ``q`` measures)::
+
+    relayed_p = rho_p sum_q A_q / (pi (r_pq^2 + L^2)) * samples_q (delayed)
+
+``L`` (m, ``near_field``) keeps the sum finite where ``r -> 0``: neighbouring points of one surface
+hardly light each other (their cosines vanish), which a model without surface normals can only
+state as a near-field length. The cosines elsewhere are left out; the term's ``scene_relay``
+(a relay efficiency, 1 = every pair facing each other) scales the whole sum.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+
+import torch
+
+from .. import constants as K
+
+__all__ = ["relay_matrix", "scene_relay"]
+
+_CACHE: OrderedDict = OrderedDict()
+
+
+def relay_matrix(
+    depth: torch.Tensor, fov_deg: float, near_field: float, step: int, phase_per_metre: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(W, W cos psi, W sin psi, source index (Q,))`` for one (H, W) depth map (m), each (Q, P):
+    the form factors ``W = A_q / (pi (r^2 + L^2))`` and ``psi`` the phase of the extra path.
+    Cached for the last few (scene, settings)."""
+    d64 = depth.detach().to(torch.float64)
+    ramp = torch.arange(d64.numel(), dtype=torch.float64).view(d64.shape)
+    # the scene by content (a freed tensor's address may come back with other values)
+    content = (float(d64.sum()), float((d64 * ramp).sum()), float((d64 * d64).sum()))
+    key = (tuple(depth.shape), content, fov_deg, near_field, step, phase_per_metre)
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    h, w = depth.shape
+    d = d64
+    f_px = (w / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+    yy = (torch.arange(h, dtype=torch.float64).view(h, 1) - (h - 1) / 2.0).expand(h, w)
+    xx = (torch.arange(w, dtype=torch.float64).view(1, w) - (w - 1) / 2.0).expand(h, w)
+    ray = torch.stack([xx / f_px, yy / f_px, torch.ones_like(xx)], -1)
+    pts = (d.unsqueeze(-1) * ray / ray.norm(dim=-1, keepdim=True)).reshape(-1, 3)
+    sy = torch.arange(step // 2, h, step)
+    sx = torch.arange(step // 2, w, step)
+    src = (sy.view(-1, 1) * w + sx.view(1, -1)).reshape(-1)
+    dp, dq = d.reshape(-1), d.reshape(-1)[src]
+    area = dq * dq * (step / f_px) ** 2
+    r = torch.cdist(pts, pts[src])
+    wgt = area.view(1, -1) / (math.pi * (r * r + near_field**2))
+    psi = 0.5 * phase_per_metre * (r + dp.view(-1, 1) - dq.view(1, -1))
+    # transposed (Q, P) for the products with the sources' phasors
+    out = tuple(
+        x.T.contiguous().float() for x in (wgt, wgt * torch.cos(psi), wgt * torch.sin(psi))
+    ) + (src,)
+    _CACHE[key] = out
+    while len(_CACHE) > K.RELAY_CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return out
+
+
+def scene_relay(
+    samples: torch.Tensor,
+    depth: torch.Tensor,
+    reflectance: torch.Tensor,
+    fov_deg: float,
+    near_field: float,
+    step: int,
+    phase_per_metre: float,
+) -> torch.Tensor:
+    """The relayed samples (B, N, H, W) for samples (B, N, H, W) of one scene (depth and
+    reflectance (H, W)), at unit efficiency; linear in ``samples`` (the graph is kept)."""
+    b, n, h, w = samples.shape
+    wgt, wc, ws, src = relay_matrix(depth, fov_deg, near_field, step, phase_per_metre)
+    dt = samples.dtype
+    wgt, wc, ws = wgt.to(dt), wc.to(dt), ws.to(dt)
+    th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
+    c, s = torch.cos(th).to(dt), torch.sin(th).to(dt)
+    c = torch.where(c.abs() < 1e-12, torch.zeros_like(c), c)
+    s = torch.where(s.abs() < 1e-12, torch.zeros_like(s), s)
+    x = samples.reshape(b, n, h * w)[:, :, src]  # (B, N, Q)
+    dc = x.mean(1)  # (B, Q)
+    xr = (x * c.view(1, n, 1)).sum(1)
+    xi = -(x * s.view(1, n, 1)).sum(1)
+    # sum_q W_pq X_q e^{j psi_pq}, sum_q W_pq DC_q
+    yr = xr @ wc - xi @ ws  # (B, P)
+    yi = xr @ ws + xi @ wc
+    ydc = dc @ wgt
+    rho = reflectance.to(dt).reshape(1, h * w)
+    yr, yi, ydc = yr * rho, yi * rho, ydc * rho
+    out = ydc.unsqueeze(1) + (2.0 / n) * (
+        yr.unsqueeze(1) * c.view(1, n, 1) - yi.unsqueeze(1) * s.view(1, n, 1)
+    )
+    return out.reshape(b, n, h, w)
