@@ -169,9 +169,18 @@ def diagnose(
             p0 = predict(model, obs)
         ctx = make_context(obs, p0.a0 / p0.s)
         # the masks come from the starting model (its amplitude scale and noise level are robust
-        # medians of the data), so that a baseline that misfits badly cannot shrink them
+        # medians of the data), so that a baseline that misfits badly cannot shrink them ...
         init = model
         model, _ = fit(model, obs, ctx)
+        # ... and may only grow: a pixel whose signal is clear under the fitted model joins too
+        # (the starting model's robust amplitude scale can sit below a bright corner's, which
+        # hid e.g. wrapped far pixels with a fitted SNR above the cut); refit on the union
+        with torch.no_grad():
+            p1 = predict(model, obs)
+        grown = make_context(obs, torch.maximum(p0.a0 / p0.s, p1.a0 / p1.s))
+        if bool((grown.mask_d & ~ctx.mask_d).any()) or bool((grown.mask_a & ~ctx.mask_a).any()):
+            ctx = grown
+            model, _ = fit(model, obs, ctx)
         start_values = robust_start(init, obs, ctx, model)
         if not bool(ctx.mask_d.any()):
             raise ValueError("no pixel has a clear enough signal for the depth likelihood")
