@@ -60,6 +60,7 @@ import math
 import torch
 
 from .. import constants as K
+from .fpn_filter import _tracing
 
 __all__ = ["false_alarm_threshold", "noise_power", "risk_shrinkage", "stripe_gate"]
 
@@ -212,27 +213,36 @@ def noise_power(
     if H < 2 or W < 2:
         return torch.zeros_like(x)
     ok = torch.isfinite(x) if valid is None else valid & torch.isfinite(x)
-    xv = torch.where(ok, x, torch.zeros_like(x))
+    # eager and every pixel usable (the common case): skip the masking
+    dense = not _tracing() and bool(ok.all())
+    xv = x if dense else torch.where(ok, x, torch.zeros_like(x))
     d = 0.5 * (xv[..., :-1, :-1] - xv[..., :-1, 1:] - xv[..., 1:, :-1] + xv[..., 1:, 1:])
     ok4 = ok[..., :-1, :-1] & ok[..., :-1, 1:] & ok[..., 1:, :-1] & ok[..., 1:, 1:]
-    d = torch.where(ok4, d, torch.zeros_like(d))
+    if not dense:
+        d = torch.where(ok4, d, torch.zeros_like(d))
     if amplitude is not None:
         a = amplitude.to(x.dtype)
-        a = torch.where(ok, a, torch.zeros_like(a))
+        if not dense:
+            a = torch.where(ok, a, torch.zeros_like(a))
         a4 = 0.25 * (a[..., :-1, :-1] + a[..., :-1, 1:] + a[..., 1:, :-1] + a[..., 1:, 1:])
         k = _robust_scale(d * a4, ok4)
         law = (k / a4.clamp_min(1e-30)) ** 2
     else:
         law = (_robust_scale(d, ok4) ** 2).expand_as(d)
-    m = ok4.to(x.dtype)
     r = K.GATE_NOISE_WINDOW // 2
-    num = torch.nn.functional.avg_pool2d(d * d, K.GATE_NOISE_WINDOW, 1, r, False, False)
-    den = torch.nn.functional.avg_pool2d(m, K.GATE_NOISE_WINDOW, 1, r, False, False)
-    local = num / den.clamp_min(1e-30)
-    var = torch.where(ok4, torch.minimum(law, local), torch.zeros_like(d))
+    # the local mean of d^2 over the window's usable blocks (count_include_pad=False: borders)
+    local = torch.nn.functional.avg_pool2d(d * d, K.GATE_NOISE_WINDOW, 1, r, False, False)
+    if not dense:
+        den = torch.nn.functional.avg_pool2d(
+            ok4.to(x.dtype), K.GATE_NOISE_WINDOW, 1, r, False, False
+        )
+        local = local / den.clamp_min(1e-30)
+    var = torch.minimum(law, local)
+    if not dense:
+        var = torch.where(ok4, var, torch.zeros_like(d))
     var = torch.cat([var, var[..., -1:, :]], -2)  # back to (H, W): repeat the last row, column
     var = torch.cat([var, var[..., -1:]], -1)  # (no replicate Pad: ONNX opset 17 lacks it)
-    return torch.where(ok, var, torch.zeros_like(var))
+    return var if dense else torch.where(ok, var, torch.zeros_like(var))
 
 
 def risk_shrinkage(

@@ -177,9 +177,11 @@ class FPNSuppression(Float32Stage):
         g, stripes = line_gate(
             depth, filtered, mask, notch.dims, notch.notches, self.noise_gain, self.min_stripe
         )
+        if not _tracing() and not bool(g.any()):  # no stripes anywhere: nothing to weigh
+            return depth
         weight = torch.ones_like(depth)
-        if fusion is not None and amplitude is not None:
-            weight = fusion(weight + 1.0, weight, amplitude) - 1.0
+        if fusion is not None and amplitude is not None:  # the fusion is affine in its inputs:
+            weight = fusion(weight + 1.0, weight, amplitude) - 1.0  # its weight w_p, any kind
         noise = noise_power(depth, amplitude, mask)
         g = g * risk_shrinkage(out - depth, weight, noise, stripes, self.centre, mask)
         blended = depth + g.to(depth.dtype) * (out - depth)
