@@ -5,6 +5,7 @@ Usage::
     python scripts/bench_never_hurts.py                 # 2 scene kinds x 13 sizes x 3 noise levels
     python scripts/bench_never_hurts.py --quick         # fewer sizes (what tests/ runs)
     python scripts/bench_never_hurts.py --striped       # striped frames: gated vs ungated stage
+    python scripts/bench_never_hurts.py --striped --large   # the same on 1024 x 1280
 
 Scenes: ``synthetic_scene`` (Fig. 7-like: edges, thin bars, a Siemens star, a grating) and
 ``planar_scene`` (Sec. IV-A boards), heights and widths from 32 to 640, odd and even, with eq. (2)
@@ -92,7 +93,7 @@ STRIPED_SIZES = [(191, 255), (64, 127), (204, 204), (33, 511)]
 STRIPES = (0.0, 0.01, 0.03, 0.1)  # amplitude (m) at pi; 2/3 of it at 2 pi / 3
 
 
-def run_striped() -> dict:
+def run_striped(sizes=STRIPED_SIZES) -> dict:
     """Frames with column stripes at pi and 2 pi / 3 (0 to 10 cm) on the two scene kinds, four
     sizes, four noise levels: the PSNR change of the default (gated) stage and of the paper's
     ungated one. The gated stage must not lose where the notch costs more than it gains."""
@@ -101,7 +102,7 @@ def run_striped() -> dict:
     gated, ungated = suppression_from_design(), suppression_from_design(gate=False)
     rows = []
     for (h, w), maker, k, a in itertools.product(
-        STRIPED_SIZES, (synthetic_scene, planar_scene), (0.1, 0.3, 1.0, 3.0), STRIPES
+        sizes, (synthetic_scene, planar_scene), (0.1, 0.3, 1.0, 3.0), STRIPES
     ):
         sc = maker(h, w, seed=h + w)
         gt, amp = sc.depth, sc.amplitude
@@ -127,11 +128,12 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="5 sizes")
     p.add_argument("--striped", action="store_true", help="striped frames, gated vs ungated")
+    p.add_argument("--large", action="store_true", help="with --striped: 1024 x 1280 only")
     p.add_argument("--json", type=Path)
     args = p.parse_args()
     t0 = time.perf_counter()
     if args.striped:
-        res = run_striped()
+        res = run_striped([(1024, 1280)] if args.large else STRIPED_SIZES)
         for key in ("gated_db", "ungated_db"):
             v = [r[key] for r in res["rows"]]
             hurt = [r for r in res["rows"] if r[key] < -0.01]
