@@ -235,6 +235,9 @@ DIAG_MIN_GAIN: float = 10.0
 DIAG_MIN_DAIC: float = 10.0
 #: Iterations of L-BFGS when a candidate term is fitted on the fitting half.
 DIAG_CANDIDATE_ITERS: int = 20
+#: Candidates whose held-out gain is within this share of the best are fitted on (up to
+#: ``DIAG_FIT_ITERS`` per round) before the ranking is taken.
+DIAG_CONTENDER_SHARE: float = 0.25
 #: quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
 #: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md): a
 #: dense grid from the median to the 99.9th percentile, as a clip of many pixels predicts them
