@@ -368,6 +368,8 @@ def main() -> None:
         js = jobs(a.effects, a.factors, a.seeds, a.nulls, a.seed_offset, a.null_offset)
     for j in js:
         j["size"] = list(a.size)
+    if not a.pilot:
+        js = interleave(js)
     t0 = time.time()
     results = []
     with ProcessPoolExecutor(max_workers=a.workers) as ex:
@@ -379,14 +381,35 @@ def main() -> None:
                 f"{r['seconds']:.1f} s",
                 flush=True,
             )
-    if a.pilot:
-        return
+            if not a.pilot:  # written as it goes: a run cut short keeps what it measured
+                save(a.out, results, t0, complete=len(results) == len(js))
+    if not a.pilot:
+        print(json.dumps(summary(results), indent=1))
+
+
+def interleave(js: list[dict]) -> list[dict]:
+    """Recordings in an order where a partial run is a fair sample: effect by effect at one
+    seed (every effect and magnitude before the next seed), nulls spread evenly."""
+    eff = [j for j in js if j["effect"] is not None]
+    nul = [j for j in js if j["effect"] is None]
+    eff.sort(key=lambda j: (j["seed"] % 1000, j["factor"]))
+    out, step = [], max(len(eff) // max(len(nul), 1), 1)
+    for i, j in enumerate(eff):
+        out.append(j)
+        if nul and (i + 1) % step == 0:
+            out.append(nul.pop(0))
+    return out + nul
+
+
+def save(path: str, results: list[dict], t0: float, complete: bool) -> None:
     summ = summary(results)
     summ["wall_seconds"] = time.time() - t0
-    Path(a.out).write_text(
+    summ["complete"] = complete
+    tmp = Path(str(path) + ".tmp")
+    tmp.write_text(
         json.dumps({"summary": summ, "results": results}, indent=1, default=float) + "\n"
     )
-    print(json.dumps(summ, indent=1))
+    tmp.replace(path)
 
 
 if __name__ == "__main__":
