@@ -286,8 +286,9 @@ def summary(results: list[dict]) -> dict:
 
 def speed(out_path: str, threads: int = 2) -> dict:
     """One full diagnosis (default bootstrap, figures rendered) of a null recording of 24 frames
-    120 x 160 and one of 50 frames 204 x 204, ``threads`` torch threads; load average recorded
-    (the machine may be shared)."""
+    120 x 160 and one of 50 frames 204 x 204, and of the same sizes with a 2 % scene relay
+    (multipath) on the ramp, ``threads`` torch threads; load average recorded (the machine may
+    be shared)."""
     import os
 
     from tof_fpn_torch.diagnosis import diagnose
@@ -303,17 +304,29 @@ def speed(out_path: str, threads: int = 2) -> dict:
     t0 = time.perf_counter()
     diagnose(Recording(torch.from_numpy(depth), torch.from_numpy(amp), meta), sc).files(True)
     res["warm_up_seconds"] = round(time.perf_counter() - t0, 2)
-    for h, w, t in ((120, 160, 24), (204, 204, 50)):
-        sc = synthetic_scene(h, w, seed=7, depth_range=(0.5, 6.0))
+    # null recordings, then the slowest kind of run 8 (multipath at 2x on the ramp: every
+    # candidate fitted, two terms kept, the backward pass refits)
+    cases = [(h, w, t, None) for h, w, t in ((120, 160, 24), (204, 204, 50))]
+    cases += [(h, w, t, "multipath") for h, w, t in ((120, 160, 24), (204, 204, 50))]
+    for h, w, t, eff in cases:
+        if eff is None:
+            sc = synthetic_scene(h, w, seed=7, depth_range=(0.5, 6.0))
+        else:
+            set_size(h, w, t)
+            sc = scene("ramp", 122)
         d = sc.depth[0, 0].double().numpy()
         r = sc.reflectance[0, 0].double().numpy()
-        depth, amp, meta, _ = generate(d, r, frames=t, seed=7)
+        mag = 0.0 if eff is None else 2 * DETECTION[eff]
+        depth, amp, meta, _ = generate(
+            d, r, frames=t, seed=7 if eff is None else 1022, effect=eff, magnitude=mag
+        )
         rec = Recording(torch.from_numpy(depth), torch.from_numpy(amp), meta)
         load0 = os.getloadavg()
         t0, c0 = time.perf_counter(), time.process_time()
         diag = diagnose(rec, sc, threads=threads)
         files = diag.files(figures=True)
         run = {
+            "effect": eff,
             "frames": t,
             "height": h,
             "width": w,
