@@ -140,3 +140,46 @@ def test_generator_cyclic_truth_is_the_decoded_peak_to_peak():
     err = np.mod(depth[0, 0] - d + r / 2, r) - r / 2
     assert math.isclose(err.max() - err.min(), g._cyclic_truth(0.04, f, n), rel_tol=0.02)
     assert err.max() - err.min() > 5e-3  # 8.5 mm p-p at share 0.04
+
+
+def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
+    # predict() relays the two cached unit images once and scales them (the relay is linear in
+    # the samples); it must equal Multipath.apply on the photons' samples, gradient included
+    import torch
+
+    from tof_fpn_torch.diagnosis import model as M
+    from tof_fpn_torch.sim import Camera, Multipath, SimState, synthetic_scene
+    from tof_fpn_torch.sim.readout import Photons
+
+    cam = Camera()
+    scene = synthetic_scene(24, 32, seed=3, depth_range=(0.6, 5.0))
+    act = (
+        Photons(responsivity=1.0)
+        .mean_samples(M.replace(cam, ambient_irradiance=0.0), scene)
+        .double()
+    )
+    amb = (
+        Photons(responsivity=1.0)
+        .mean_samples(M.replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene)
+        .double()
+    )
+    resp = torch.tensor(1.7, dtype=torch.float64, requires_grad=True)
+    relay = torch.tensor(0.05, dtype=torch.float64, requires_grad=True)
+    term = Multipath(0.01, 1.5, scene_relay=relay, field_of_view=60.0, near_field=1.0)
+    M._RELAY_CACHE.clear()
+    outs = []
+    for cached in (True, False):
+        samples = (act + amb * 0.8) * resp
+        state = SimState(cam, scene, samples, None)
+        if cached:
+            out = M._multipath(term, state, (act, amb), ("test",), 0.8, resp).samples
+        else:
+            out = term.apply(state).samples
+        (g_resp, g_relay) = torch.autograd.grad(out.sum(), (resp, relay))
+        outs.append((out.detach(), g_resp, g_relay))
+    assert len(M._RELAY_CACHE) == 1
+    (a, ga, ra), (b, gb, rb) = outs
+    assert float((a - b).abs().max()) <= 1e-9 * float(b.abs().max())
+    assert float((a - (act + amb * 0.8) * 1.7).abs().max()) > 1e-3 * float(b.abs().max())
+    assert float(ga) == pytest.approx(float(gb), rel=1e-9)
+    assert float(ra) == pytest.approx(float(rb), rel=1e-9)

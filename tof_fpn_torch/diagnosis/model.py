@@ -201,6 +201,27 @@ def _baseline_fpn(samples: torch.Tensor, v: dict) -> torch.Tensor:
 
 
 _PHOTONS_CACHE: dict = {}
+_RELAY_CACHE: dict = {}
+
+
+def _multipath(t, state, units, key, amb_irr, resp):
+    """``t.apply(state)`` when ``state.samples`` are still the photons' ``(act + amb_irr amb)
+    resp``: the scene relay is linear in the samples, so the relays of the two cached unit
+    images are computed once per scene and geometry and scaled (the (sources x pixels) products
+    and their backward pass ran in every prediction: a third of a diagnosis with multipath)."""
+    if isinstance(t.scene_relay, (int, float)) and t.scene_relay == 0:
+        return t.apply(state)
+    rkey = (key, float(t.field_of_view), float(t.near_field), int(t.relay_step))
+    rel = _RELAY_CACHE.get(rkey)
+    if rel is None:
+        with torch.no_grad():
+            rel = (t.relayed(units[0], state), t.relayed(units[1], state))
+        if len(_RELAY_CACHE) >= K.RELAY_CACHE_SIZE:
+            _RELAY_CACHE.clear()
+        _RELAY_CACHE[rkey] = rel
+    state = replace(t, scene_relay=0.0).apply(state)  # the uniform relay from outside the view
+    state.samples = state.samples + t.scene_relay * resp * (rel[0] + rel[1] * amb_irr)
+    return state
 
 
 def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Prediction:
@@ -222,6 +243,7 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
                 replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene
             )
         _PHOTONS_CACHE.clear()
+        _RELAY_CACHE.clear()
         _PHOTONS_CACHE[key] = units = (act, amb)
     amb_irr = v.get("camera.ambient_irradiance", cam.ambient_irradiance)
     samples = (units[0] + units[1] * amb_irr) * v["photons.responsivity"]
@@ -239,6 +261,8 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
             # sample, averaged (its mean bends over ~1 sd; the clipped part has no noise)
             var_e = state.samples.clamp_min(0) + v["camera.read_noise"] ** 2
             state.samples, sample_var = t.noisy_moments(state.samples, var_e)
+        elif e == "multipath" and state.samples is samples:
+            state = _multipath(t, state, units, key, amb_irr, v["photons.responsivity"])
         elif t is not None:
             state = t.apply(state)
     g = v["camera.conversion_gain"]
