@@ -183,3 +183,33 @@ def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
     assert float((a - (act + amb * 0.8) * 1.7).abs().max()) > 1e-3 * float(b.abs().max())
     assert float(ga) == pytest.approx(float(gb), rel=1e-9)
     assert float(ra) == pytest.approx(float(rb), rel=1e-9)
+
+
+def test_candidates_map_in_threads_keeps_the_order_and_the_thread_count():
+    import threading
+
+    import torch
+
+    from tof_fpn_torch.diagnosis.threads import map_threads
+
+    old = torch.get_num_threads()
+    seen = set()
+
+    def fn(x):
+        seen.add(threading.get_ident())
+        assert torch.get_num_threads() == 1  # one torch thread per Python thread
+        return torch.full((64, 64), float(x)).matmul(torch.eye(64)).sum().item()
+
+    try:
+        torch.set_num_threads(2)
+        got = map_threads(fn, list(range(12)))
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(old)
+    assert got == [64.0 * 64.0 * x for x in range(12)]
+    assert len(seen) >= 1 and threading.get_ident() not in seen  # ran in the pool
+    torch.set_num_threads(1)
+    try:
+        assert map_threads(lambda x: x + 1, [1, 2]) == [2, 3]  # one thread: a plain loop
+    finally:
+        torch.set_num_threads(old)

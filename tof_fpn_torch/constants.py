@@ -254,6 +254,9 @@ MULTIPATH_NEAR_FIELD_M: float = 1.0
 MULTIPATH_RELAY_STEP: int = 8
 MULTIPATH_MAX_SOURCES: int = 300
 RELAY_CACHE_SIZE: int = 2
+#: the diagnosis keeps the relay of its two unit images (2 x (1, N, H, W), small) for this many
+#: geometries: the grid of fields of view and near fields below, tried in every ranking round
+DIAG_RELAY_CACHE_SIZE: int = 16
 #: the diagnosis profiles the scene relay over these fields of view (deg) and near fields (m)
 DIAG_MULTIPATH_FIELDS_OF_VIEW: tuple[float, ...] = (50.0, 70.0, 90.0)
 DIAG_MULTIPATH_NEAR_FIELDS: tuple[float, ...] = (0.3, 1.0, 3.0)

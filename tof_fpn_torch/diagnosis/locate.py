@@ -27,6 +27,7 @@ import torch
 from .. import constants as K
 from .axes import Axis, axes
 from .data import Observations, fold, pixel_stats
+from .threads import map_threads
 
 __all__ = ["Stat", "bootstrap", "locate", "statistics"]
 
@@ -233,9 +234,12 @@ def simulate_observations(model, obs: Observations, ctx, seed: int):
 
 def bootstrap(model, obs: Observations, ctx, stats: dict[str, Stat], replicates: int, seed: int):
     """Fill ``stat.null`` with ``replicates`` parametric-bootstrap values of every statistic."""
-    for i in range(replicates):
+
+    def one(i: int) -> dict:
         b, pred = simulate_observations(model, obs, ctx, seed + 1000 * (i + 1))
-        sb = statistics(b, pred, ctx)
+        return statistics(b, pred, ctx)
+
+    for sb in map_threads(one, list(range(replicates))):  # own generators: any order, same values
         for k, s in stats.items():
             if k in sb:
                 s.null.append(sb[k].value)

@@ -216,7 +216,7 @@ def _multipath(t, state, units, key, amb_irr, resp):
     if rel is None:
         with torch.no_grad():
             rel = (t.relayed(units[0], state), t.relayed(units[1], state))
-        if len(_RELAY_CACHE) >= K.RELAY_CACHE_SIZE:
+        if len(_RELAY_CACHE) >= K.DIAG_RELAY_CACHE_SIZE:
             _RELAY_CACHE.clear()
         _RELAY_CACHE[rkey] = rel
     state = replace(t, scene_relay=0.0).apply(state)  # the uniform relay from outside the view

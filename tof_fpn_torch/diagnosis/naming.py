@@ -20,6 +20,7 @@ from .. import constants as K
 from .catalogue import CATALOGUE, implemented
 from .fit import evaluate, fit
 from .model import CORE_SPECS, DiagnosisModel, peak_samples, predict
+from .threads import map_threads
 
 __all__ = ["initial_values", "rank"]
 
@@ -195,13 +196,11 @@ def rank(
         base_train, _ = fit(model, obs, ctx, "train")
     nll_train = evaluate(base_train, obs, ctx, "train")
     nll_test = evaluate(base_train, obs, ctx, "test")
-    out = []
-    for name in implemented():
-        if name in base_train.effects or (only is not None and name not in only):
-            continue
+
+    def one(name: str) -> dict | None:
         init = initial_values(name, base_train, obs, ctx)
         if not init:
-            continue
+            return None
         starts = [_try(base_train, name, init, obs, ctx, nll_train)[0]]
         # every core value is free: a current model that misfits has its noise law and FPN
         # bent to the misfit, and the term must be able to undo that
@@ -227,21 +226,29 @@ def rank(
                 starts.append(alt_start)
         starts = [s for s in starts if s is not None]
         if not starts:
-            continue
+            return None
         fits = [fit(s, obs, ctx, "train", free=free, iters=K.DIAG_CANDIDATE_ITERS) for s in starts]
         cand = min(fits, key=lambda t: t[1])[0]
-        out.append(_score(name, cand, base_train, nll_train, nll_test, obs, ctx, free))
+        return _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free)
+
+    names = [
+        n for n in implemented() if n not in base_train.effects and (only is None or n in only)
+    ]
+    out = [r for r in map_threads(one, names) if r is not None]
     out.sort(key=_key)
     # the contenders close to the best are fitted on to convergence before the order is taken:
     # which term wins must not hang on the iteration budget (a clip level that starts far from
     # the optimum converges more slowly than an outlier rate)
     top = out[0]["score"] if out and out[0]["score"] is not None else None
     if top is not None and top >= K.DIAG_MIN_GAIN:
-        for i, r in enumerate(out):
+
+        def on(r: dict) -> dict:
             if r["score"] is None or r["score"] < (1 - K.DIAG_CONTENDER_SHARE) * top:
-                continue
+                return r
             cand, _ = fit(r["model"], obs, ctx, "train", free=r["free"], iters=K.DIAG_FIT_ITERS)
-            out[i] = _score(r["name"], cand, base_train, nll_train, nll_test, obs, ctx, r["free"])
+            return _score(r["name"], cand, base_train, nll_train, nll_test, obs, ctx, r["free"])
+
+        out = map_threads(on, out)
     out.sort(key=_key)
     for r in out:
         r.pop("free")

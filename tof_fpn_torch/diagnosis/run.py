@@ -21,6 +21,7 @@ from .locate import Stat, bootstrap, locate, statistics
 from .model import DiagnosisModel, predict
 from .naming import rank
 from .persist import adapt_model, load_model
+from .threads import map_threads
 
 __all__ = ["Diagnosis", "diagnose"]
 
@@ -297,11 +298,11 @@ def _prune(model, effects: list, obs, ctx):
     nll_cur = evaluate(model, obs, ctx)
     drops: list = []
     while len(effects) > 1:
-        drops = []
-        for e in effects:
-            wo, nll_wo = fit(model.without(e["name"]), obs, ctx)
-            d_aic = 2 * (wo.n_parameters() - model.n_parameters()) + 2 * (nll_wo - nll_cur)
-            drops.append((d_aic, e, wo, nll_wo))
+        fits = map_threads(lambda e, m=model: fit(m.without(e["name"]), obs, ctx), effects)
+        drops = [
+            (2 * (wo.n_parameters() - model.n_parameters()) + 2 * (nll_wo - nll_cur), e, wo, nll_wo)
+            for e, (wo, nll_wo) in zip(effects, fits, strict=True)
+        ]
         weakest = min(drops, key=lambda t: t[0])
         if weakest[0] >= K.DIAG_MIN_DAIC:
             break

@@ -22,6 +22,7 @@ state as a near-field length. The cosines elsewhere are left out; the term's ``s
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 
 import torch
@@ -31,6 +32,7 @@ from .. import constants as K
 __all__ = ["relay_matrix", "scene_relay"]
 
 _CACHE: OrderedDict = OrderedDict()
+_LOCK = threading.Lock()  # the diagnosis fits candidates in threads
 
 
 def relay_matrix(
@@ -38,7 +40,12 @@ def relay_matrix(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(W, W cos psi, W sin psi, source index (Q,))`` for one (H, W) depth map (m), each (Q, P):
     the form factors ``W = A_q / (pi (r^2 + L^2))`` and ``psi`` the phase of the extra path.
-    Cached for the last few (scene, settings)."""
+    Cached for the last few (scene, settings); thread-safe."""
+    with _LOCK:
+        return _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre)
+
+
+def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre):
     d64 = depth.detach().to(torch.float64)
     ramp = torch.arange(d64.numel(), dtype=torch.float64).view(d64.shape)
     # the scene by content (a freed tensor's address may come back with other values)
