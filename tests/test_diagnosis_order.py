@@ -187,6 +187,7 @@ def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
 
 def test_candidates_map_in_threads_keeps_the_order_and_the_thread_count():
     import threading
+    import time
 
     import torch
 
@@ -208,6 +209,19 @@ def test_candidates_map_in_threads_keeps_the_order_and_the_thread_count():
         torch.set_num_threads(old)
     assert got == [64.0 * 64.0 * x for x in range(12)]
     assert len(seen) >= 1 and threading.get_ident() not in seen  # ran in the pool
+    started = []
+    try:
+        torch.set_num_threads(2)
+
+        def slow(x):  # long enough that both threads have started before either is done
+            started.append(x)
+            time.sleep(0.05)
+            return x * 10
+
+        got = map_threads(slow, [1, 2, 3, 4], first=lambda x: x > 2)
+    finally:
+        torch.set_num_threads(old)
+    assert got == [10, 20, 30, 40] and set(started[:2]) == {3, 4}
     torch.set_num_threads(1)
     try:
         assert map_threads(lambda x: x + 1, [1, 2]) == [2, 3]  # one thread: a plain loop

@@ -234,7 +234,9 @@ def rank(
     names = [
         n for n in implemented() if n not in base_train.effects and (only is None or n in only)
     ]
-    out = [r for r in map_threads(one, names) if r is not None]
+    # the relay grid of multipath and the clip levels of saturation are the slowest to fit
+    slow = ("multipath", "saturation")
+    out = [r for r in map_threads(one, names, first=lambda n: n in slow) if r is not None]
     out.sort(key=_key)
     # the contenders close to the best are fitted on to convergence before the order is taken:
     # which term wins must not hang on the iteration budget (a clip level that starts far from
