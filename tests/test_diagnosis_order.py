@@ -145,6 +145,8 @@ def test_generator_cyclic_truth_is_the_decoded_peak_to_peak():
 def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
     # predict() relays the two cached unit images once and scales them (the relay is linear in
     # the samples); it must equal Multipath.apply on the photons' samples, gradient included
+    from dataclasses import replace
+
     import torch
 
     from tof_fpn_torch.diagnosis import model as M
@@ -154,13 +156,11 @@ def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
     cam = Camera()
     scene = synthetic_scene(24, 32, seed=3, depth_range=(0.6, 5.0))
     act = (
-        Photons(responsivity=1.0)
-        .mean_samples(M.replace(cam, ambient_irradiance=0.0), scene)
-        .double()
+        Photons(responsivity=1.0).mean_samples(replace(cam, ambient_irradiance=0.0), scene).double()
     )
     amb = (
         Photons(responsivity=1.0)
-        .mean_samples(M.replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene)
+        .mean_samples(replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene)
         .double()
     )
     resp = torch.tensor(1.7, dtype=torch.float64, requires_grad=True)
