@@ -39,8 +39,14 @@ BORDER_MODES: tuple[str, ...] = ("reflect", "replicate", "circular", "zeros")
 
 
 def _phases() -> int:
-    """Polyphase channels of :func:`fir_polyphase` (a function: TorchScript reads no globals)."""
+    """Output samples per position of :func:`fir_polyphase` (a function: TorchScript reads no
+    globals); also its minimum input: ``2 * _phases()`` samples."""
     return 32
+
+
+def _in_phases() -> int:
+    """Input samples per position (input channels) of :func:`fir_polyphase`."""
+    return 8
 
 
 def pad_index(
@@ -152,14 +158,15 @@ def _seam_operators(g: torch.Tensor, mode: str) -> list[torch.Tensor]:
 
 
 def polyphase_weight(g: torch.Tensor) -> torch.Tensor:
-    """``W[q, p, 0, j] = g[j P + p - q]`` (0 outside), channels-last (P, P, 1, K) conv weight."""
-    phases = _phases()
+    """``W[q, p, 0, k] = g[k Pin + p - q]`` (0 outside), the channels-last (Q, Pin, 1, K) weight of
+    :func:`fir_polyphase`, ``K = ceil((Q + L - 1) / Pin)``."""
+    q_out, p_in = _phases(), _in_phases()
     length = g.shape[0]
-    k_len = (phases - 1 + length - 1) // phases + 1
-    q = torch.arange(phases, device=g.device).view(phases, 1, 1)
-    p = torch.arange(phases, device=g.device).view(1, phases, 1)
+    k_len = (q_out + length - 1 + p_in - 1) // p_in
+    q = torch.arange(q_out, device=g.device).view(q_out, 1, 1)
+    p = torch.arange(p_in, device=g.device).view(1, p_in, 1)
     j = torch.arange(k_len, device=g.device).view(1, 1, k_len)
-    k = j * phases + p - q
+    k = j * p_in + p - q
     inside = (k >= 0) & (k < length)
     gz = torch.cat([g, torch.zeros(1, dtype=g.dtype, device=g.device)])
     wt = gz[torch.where(inside, k, torch.full_like(k, length))]
@@ -229,33 +236,39 @@ def fir_inplace(
 def fir_polyphase(
     x2: torch.Tensor, g: torch.Tensor, mode: str, ops: list[torch.Tensor]
 ) -> torch.Tensor:
-    """Polyphase FIR along the last axis of a contiguous float32 (R, W) as one multi-channel
-    convolution.
+    """Polyphase FIR along the last axis of a contiguous float32 (R, W) as one strided
+    multi-channel convolution.
 
-    The flattened batch is one long signal ``x``; viewed as (n / P, P) it *is* a channels-last
-    (1, P, 1, n / P) image whose channel ``p`` holds the phase ``x[m P + p]``, no copy. Output phase
-    ``q`` is ``sum_{p, j} g[j P + p - q] x[(m + j) P + p]``, a ``P``-in, ``P``-out convolution with
-    ``K = ceil((L - 1) / P) + 1`` taps (``P K`` multiply-adds per sample), which oneDNN runs at GEMM
-    speed; its channels-last output is again the flat signal. Zero conv padding of ``K`` phases on
-    both sides lets the result be a view of the conv output shifted by ``left``. Only row-border
-    columns and the last ``n mod P`` samples are then redone. Needs ``W >= L`` and ``R W >= 2 P``.
+    The flattened batch is one long signal ``x``; viewed as (n / Pin, Pin) it *is* a channels-last
+    (1, Pin, 1, n / Pin) image whose channel ``p`` holds the phase ``x[m Pin + p]``, no copy. A
+    convolution with stride ``Q / Pin`` and ``K = ceil((Q + L - 1) / Pin)`` taps gives ``Q``
+    outputs per position: output channel ``q`` of position ``j`` is
+    ``sum_{p, k} g[k Pin + p - q] x[(j Q / Pin - pad + k) Pin + p]``, i.e. the correlation at flat
+    sample ``j Q + q - pad Pin``, ``K Pin`` multiply-adds per sample (56 for 21 taps, 80 for 42,
+    against ``L`` for a direct loop but at GEMM speed). Its channels-last output is again a flat
+    signal: ``pad`` zero blocks on both sides make the result a view of it, shifted by
+    ``pad Pin - left``. Only row-border columns and the windows that reach the last ``n mod Pin``
+    samples are then redone. Needs ``W >= L`` and ``R W >= 2 Q``.
     """
-    phases = _phases()
+    q_out, p_in = _phases(), _in_phases()
+    stride = q_out // p_in
     length = g.shape[0]
     left, right = _split(length)
-    k_len = (phases - 1 + length - 1) // phases + 1
+    k_len = (q_out + length - 1 + p_in - 1) // p_in
     r, w = x2.shape[0], x2.shape[1]
     n = r * w
-    m = n // phases
+    m = n // p_in
+    pad = (left + p_in - 1) // p_in
+    while ((m + 2 * pad - k_len) // stride + 1) * q_out < pad * p_in - left + n:
+        pad += 1
     xf = x2.reshape(-1)
-    xi = xf[: m * phases].view(1, 1, m, phases).permute(0, 3, 1, 2)
+    xi = xf[: m * p_in].view(1, 1, m, p_in).permute(0, 3, 1, 2)
     xi = xi.contiguous(memory_format=torch.channels_last)  # already is: no copy
-    y = F.conv2d(xi, ops[0].to(x2.device), padding=(0, k_len))
-    # y[.., t] (flat) = sum_k g[k] x[t - K P + k], i.e. output sample s sits at t = s + K P - left
+    y = F.conv2d(xi, ops[0].to(x2.device), stride=(1, stride), padding=(0, pad))
     flat = y.permute(0, 2, 3, 1).reshape(-1)  # channels-last output: a view
-    start = k_len * phases - left
+    start = pad * p_in - left
     out = flat[start : start + n]
-    s0 = max(m * phases - right, left)  # from here on windows reach the n mod P samples left out
+    s0 = max(m * p_in - right, left)  # from here on windows reach the n mod Pin samples left out
     if s0 < n - right:
         out[s0 : n - right] = xf[s0 - left :].unfold(0, length, 1).matmul(g)
     out2 = out.view(r, w)

@@ -7,11 +7,13 @@ and removes *column* stripes (a pattern that changes from column to column), ``d
 stripes. Centring as ``scipy.ndimage.convolve1d``; even-length taps (odd order) put the output half a
 sample off the input grid (:attr:`FPNFilter.delay`).
 
-Invalid pixels (:func:`~tof_fpn_torch.runtime.valid_mask`) are first filled along the filtering axis
-by normalized convolution with a triangular window of half-width ``L // 2 + 1``
-(``sum w v x / sum w v`` over valid ``v``; the line mean where a gap is wider, the image mean for an
-empty line), the filter runs on the filled image, and the invalid pixels are written back unchanged.
-So no invalid value reaches a valid output, nothing is smeared, and invalid stays invalid.
+Invalid pixels (:func:`~tof_fpn_torch.runtime.valid_mask`) and isolated outliers (a valid pixel
+more than 3 times as far, or less than a third as far, as each valid neighbour along the filtering axis)
+are not used as data: along each filtered axis they are filled with a local mean of the usable
+depths around them, the filter runs, and they get their input values back (invalid stays invalid,
+bit for bit). A valid output moves by at most ``sum |h - delta|`` times the largest difference to a
+usable depth nearby; the exact rule and this bound are in :mod:`.holes`. With every pixel valid and
+the depths within a factor 3 (no pixel can be an outlier), the filter is the plain FIR.
 """
 
 # no `from __future__ import annotations`: TorchScript reads the class-level attribute types below
@@ -20,20 +22,14 @@ import math
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 from torch.nn.utils import parametrize
 
 from ._checks import check_image, check_taps, normalize_dims
 from .fir import BORDER_MODES, fir_last, fir_operators
-from .validity import all_valid, valid_mask
+from .holes import certified, fill_reach, holed_exact, holed_lines, outlier_ratio, tap_gains
+from .validity import all_valid, valid_mask, valid_range, zero_codes
 
-__all__ = ["FPNFilter", "fill_window", "fpn_filter"]
-
-
-def fill_window(length: int) -> torch.Tensor:
-    """Triangular window (float64) of half-width ``length // 2 + 1`` used to fill invalid pixels."""
-    half = length // 2
-    return 1.0 - torch.arange(-half - 1, half + 2, dtype=torch.float64).abs() / (half + 2.0)
+__all__ = ["FPNFilter", "fpn_filter"]
 
 
 def _tracing() -> bool:
@@ -53,62 +49,17 @@ def _along(
     return y.transpose(-1, -2).contiguous()
 
 
-def _fill_dense(
-    x: torch.Tensor,
-    valid: torch.Tensor,
-    window: torch.Tensor,
-    d: int,
-    ops: list[torch.Tensor],
-    fast: bool,
-) -> torch.Tensor:
-    """Fill invalid pixels along ``d`` by normalized convolution over the whole image (branch-free:
-    the traced / exported path, and the eager path when invalid pixels are many)."""
-    v = valid.to(x.dtype)
-    x0 = torch.where(valid, x, torch.zeros_like(x))
-    num = _along(x0, window, d, "zeros", ops, fast)
-    den = _along(v, window, d, "zeros", ops, fast)
-    thr = 0.5 / (window.shape[0] // 2 + 1.0)  # half the smallest window weight
-    local = num / torch.where(den > thr, den, torch.ones_like(den))
-    filled = torch.where(den > thr, local, _line_means(x0, v, d).expand_as(x))
-    return torch.where(valid, x, filled)
-
-
-def _line_means(x0: torch.Tensor, v: torch.Tensor, d: int) -> torch.Tensor:
-    """Mean of the valid values of every line along ``d`` (the image mean for an empty line)."""
-    count = v.sum(d, keepdim=True)
-    line = x0.sum(d, keepdim=True) / count.clamp_min(1.0)
-    image = x0.sum((-2, -1), keepdim=True) / v.sum((-2, -1), keepdim=True).clamp_min(1.0)
-    return torch.where(count > 0, line, image.expand_as(line))
-
-
-def _fill_sparse(
-    x: torch.Tensor, valid: torch.Tensor, inv: torch.Tensor, window: torch.Tensor, d: int
-) -> torch.Tensor:
-    """The fill of :func:`_fill_dense` evaluated at the invalid pixels ``inv`` (flat indices)
-    only: each line is zero-padded once, and the window around every hole is a row of an unfold
-    view, gathered and weighted by one matrix-vector product (no full-image convolution; real
-    captures have a few % of holes, and this keeps their cost near a clean frame's)."""
-    z = x.masked_fill(~valid, 0.0)
-    v = valid.to(x.dtype)
-    h, w = x.shape[-2], x.shape[-1]
+def _lines(t: torch.Tensor, d: int) -> torch.Tensor:
+    """(B, C, H, W) -> contiguous (lines, length) along ``d``."""
     if d == -1:
-        z2, v2 = z.reshape(-1, w), v.reshape(-1, w)
-        row, col = torch.div(inv, w, rounding_mode="floor"), inv % w
-    else:
-        z2, v2 = z.transpose(-1, -2).reshape(-1, h), v.transpose(-1, -2).reshape(-1, h)
-        plane = torch.div(inv, h * w, rounding_mode="floor")
-        row, col = plane * w + inv % w, torch.div(inv, w, rounding_mode="floor") % h
-    half = window.shape[0] // 2
-    win = window.to(x.dtype)
-    num = F.pad(z2, (half, half)).unfold(1, 2 * half + 1, 1)[row, col].matmul(win)
-    den = F.pad(v2, (half, half)).unfold(1, 2 * half + 1, 1)[row, col].matmul(win)
-    thr = 0.5 / (half + 1.0)
-    value = num / torch.where(den > thr, den, torch.ones_like(den))
-    far = den <= thr
-    if bool(far.any()):  # a gap wider than the window: the line mean
-        means = _line_means(z, v, d).expand_as(x).reshape(-1)
-        value = torch.where(far, means[inv], value)
-    return z.view(-1).index_copy_(0, inv, value.to(z.dtype)).view(x.shape)
+        return t.contiguous().view(-1, t.shape[-1])
+    return t.transpose(-1, -2).contiguous().view(-1, t.shape[-2])
+
+
+def _unlines(t: torch.Tensor, shape: list[int], d: int) -> torch.Tensor:
+    if d == -1:
+        return t.view(shape)
+    return t.view(shape[0], shape[1], shape[3], shape[2]).transpose(-1, -2).contiguous()
 
 
 def _fpn_filter(
@@ -117,9 +68,7 @@ def _fpn_filter(
     taps: torch.Tensor,
     dims: list[int],
     border: str,
-    window: torch.Tensor,
     taps_ops: list[torch.Tensor],
-    window_ops: list[torch.Tensor],
 ) -> torch.Tensor:
     """The filter without argument checks (shared by :func:`fpn_filter` and :class:`FPNFilter`)."""
     if x.numel() == 0:
@@ -128,47 +77,47 @@ def _fpn_filter(
     work = x.float() if x.dtype == torch.float16 or x.dtype == torch.bfloat16 else x
     tracing = _tracing()
     fast = not tracing and not (torch.is_grad_enabled() and (x.requires_grad or taps.requires_grad))
-    if tracing:  # branch-free: the validity mask, the fill and the write-back always run
-        valid = valid_mask(work, mask=mask)
-        y = _fill_dense(work, valid, window, dims[-1], window_ops, fast)
-        for d in dims:
+    reach = fill_reach(taps.shape[0])
+    shape = list(work.shape)
+    rng: tuple[float, float] | None = None
+    if not tracing and mask is None:
+        rng = valid_range(work)  # one min/max: the clean frame's shortcut
+    zeros = False
+    valid: torch.Tensor | None = None
+    if rng is None:
+        zeros = fast and mask is None and zero_codes(work)
+        if not zeros:
+            valid = valid_mask(work, mask=mask)
+    gains = (0.0, 0.0) if tracing else tap_gains(taps)
+    y = work
+    for i, d in enumerate(dims):
+        r = rng
+        if r is not None and r[1] < outlier_ratio() * r[0]:  # all valid, no outlier: plain FIR
+            prev = y
             y = _along(y, taps, d, border, taps_ops, fast)
-        keep = valid & valid_mask(y)  # ringing past 0 next to a spike: keep the input there
-        return torch.where(keep, y, work).to(out_dtype)
-    if mask is None and all_valid(work):  # one integer min/max: the usual clean frame
-        y = work
-        for d in dims:
-            y = _along(y, taps, d, border, taps_ops, fast)
-        return _keep_valid(y, work, None).to(out_dtype)
-    work = work.contiguous()
-    valid = valid_mask(work, mask=mask)
-    inv = torch.nonzero(~valid.reshape(-1)).squeeze(1)
-    if inv.numel() * window.shape[0] > work.numel():  # many holes: two full convolutions
-        y = _fill_dense(work, valid, window, dims[-1], window_ops, fast)
-    elif inv.numel() > 0:  # a few holes: a window gathered around each
-        y = _fill_sparse(work, valid, inv, window.to(work.device), dims[-1])
-    else:
-        y = work
-    for d in dims:
-        y = _along(y, taps, d, border, taps_ops, fast)
-    if inv.numel() > 0:  # invalid pixels get their input values back
-        back = work.reshape(-1)[inv]
-        if fast and y.is_contiguous():  # y is a fresh buffer of ours (the FIR output): no copy
-            y.view(-1).index_copy_(0, inv, back)
+            if not certified(r[0], r[1], gains):  # ringing past 0 next to a steep step
+                y = _keep_valid(y, prev)
+            if i + 1 < len(dims):
+                rng = valid_range(y)
+            continue
+        if fast:
+            v2 = None if valid is None else _lines(valid, d)
+            y2 = holed_lines(_lines(y, d), v2, taps, border, taps_ops, reach, gains, zeros)
         else:
-            y = y.contiguous().reshape(-1).index_copy(0, inv, back).view(work.shape)
-    return _keep_valid(y, work, valid).to(out_dtype)
+            vm = valid if valid is not None else valid_mask(y)
+            y2 = holed_exact(_lines(y, d), _lines(vm, d), taps, border, taps_ops, reach, fast)
+        y = _unlines(y2, shape, d)
+        if r is not None and i + 1 < len(dims):
+            rng = valid_range(y)
+    return y.to(out_dtype)
 
 
-def _keep_valid(y: torch.Tensor, x: torch.Tensor, valid: torch.Tensor | None) -> torch.Tensor:
+def _keep_valid(y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """A valid input pixel never comes out invalid: where the filter rang to <= 0 (next to a
-    depth spike: a 3.6 m outlier among 0.35 m), the input value is kept (one min / max check)."""
-    if valid is None and all_valid(y):
+    steep depth step), the input value is kept (one min / max check)."""
+    if all_valid(y):
         return y
-    bad = ~valid_mask(y)
-    if valid is not None:
-        bad = bad & valid
-    return torch.where(bad, x, y)
+    return torch.where(valid_mask(y), y, x)
 
 
 def fpn_filter(
@@ -206,15 +155,14 @@ def fpn_filter(
     dims = list(normalize_dims(dim))
     if mask is not None and mask.shape != x.shape:
         raise ValueError(f"mask must have the shape of x {list(x.shape)}, got {list(mask.shape)}")
-    window = fill_window(taps.shape[0]).to(x.device)
-    return _fpn_filter(x, mask, taps.to(x.device), dims, border, window, [], [])
+    return _fpn_filter(x, mask, taps.to(x.device), dims, border, [])
 
 
 class FPNFilter(nn.Module):
     r"""Fixed 1-D FIR notch filter along the width and/or height of (B, C, H, W) depth.
 
     A thin holder of buffers for :func:`fpn_filter`: the taps (float64, or a parameter when
-    ``trainable``), the fill window, and the fast-path matrices built from them when the taps are
+    ``trainable``) and the fast-path matrices built from them when the taps are
     set (:meth:`set_taps`; rebuilt in eager mode when the taps change in place, e.g. by an optimiser).
     What the design was (``order``, ``rho``, ``notches``) is kept as attributes, so TorchScript
     archives carry it and :func:`tof_fpn_torch.export.export_onnx` writes it into the ONNX metadata.
@@ -290,9 +238,6 @@ class FPNFilter(nn.Module):
                 self.taps = nn.Parameter(t)
             else:
                 self.register_buffer("taps", t)
-            self.register_buffer("window", fill_window(t.numel()))
-            for i, op in enumerate(fir_operators(self.window, "zeros")):
-                self.register_buffer(f"_window_op{i}", op, persistent=False)
             self._ops_version = -1
             self._build_operators()
 
@@ -317,6 +262,10 @@ class FPNFilter(nn.Module):
         """Rebuild the matrices when the taps changed in place (optimiser step, load_state_dict)."""
         if self._ops_version != self._taps_version():
             self._build_operators()
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        state_dict.pop(prefix + "window", None)  # the hole-fill window of earlier versions
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     @torch.jit.unused
     def set_taps(self, taps) -> None:
@@ -365,7 +314,4 @@ class FPNFilter(nn.Module):
         if not torch.jit.is_scripting():
             self._refresh_operators()
         taps_ops = [self._taps_op0, self._taps_op1, self._taps_op2, self._taps_op3]
-        window_ops = [self._window_op0, self._window_op1, self._window_op2, self._window_op3]
-        return _fpn_filter(
-            x, mask, self.taps, self.dims, self.border, self.window, taps_ops, window_ops
-        )
+        return _fpn_filter(x, mask, self.taps, self.dims, self.border, taps_ops)

@@ -18,7 +18,7 @@ import math
 
 import torch
 
-__all__ = ["all_valid", "valid_mask"]
+__all__ = ["all_valid", "valid_mask", "valid_range"]
 
 
 def valid_mask(
@@ -71,3 +71,31 @@ def all_valid(depth: torch.Tensor) -> bool:
         return bool(lo > 0) and bool(hi < 0x7F800000)
     lo, hi = torch.aminmax(depth)
     return bool(lo > 0) and bool(hi < math.inf)
+
+
+def valid_range(depth: torch.Tensor) -> tuple[float, float] | None:
+    """``(min, max)`` of ``depth`` when every value is valid (finite, > 0), else None: the same
+    one reduction as :func:`all_valid` (for float32 in eager mode on the bit patterns, whose order
+    is the order of the values for positive floats)."""
+    if depth.numel() == 0:
+        return None
+    if depth.dtype == torch.float32 and not torch.jit.is_scripting():
+        lo, hi = torch.aminmax(depth.view(torch.int32))
+        if bool(lo > 0) and bool(hi < 0x7F800000):
+            pair = torch.stack([lo, hi]).view(torch.float32).tolist()
+            return float(pair[0]), float(pair[1])
+        return None
+    lo, hi = torch.aminmax(depth.detach())
+    if bool(lo > 0) and bool(hi < math.inf):
+        return float(lo), float(hi)
+    return None
+
+
+def zero_codes(depth: torch.Tensor) -> bool:
+    """True when every invalid value of float32 ``depth`` is ``+0.0`` and every other value is a
+    valid depth: no negative number (nor ``-0.0``), no NaN, no infinity (one integer min/max on the
+    bit patterns, eager mode; False when it cannot tell, e.g. under TorchScript)."""
+    if depth.numel() > 0 and depth.dtype == torch.float32 and not torch.jit.is_scripting():
+        lo, hi = torch.aminmax(depth.view(torch.int32))
+        return bool(lo >= 0) and bool(hi < 0x7F800000)
+    return False
