@@ -39,41 +39,29 @@ def ref_outliers(x: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return out
 
 
-def ref_fill(x: np.ndarray, usable: np.ndarray, taps: int) -> np.ndarray:
-    """Blocks of 8 from the line start; block sums and counts of the usable depths smoothed with
-    the weights K + 1 - |j|, K = ceil((taps // 2) / 8); a pixel that is not usable gets its
-    block's ratio. NaN where no usable depth is in reach (no valid output may read those)."""
-    w, b = x.size, 8
-    nb, k = -(-w // b), -(-(taps // 2) // b)
-    s, n = np.zeros(nb), np.zeros(nb)
-    for c in range(w):
-        if usable[c]:
-            s[c // b] += x[c]
-            n[c // b] += 1
-    f = x.astype(np.float64).copy()
-    for c in range(w):
-        if usable[c]:
-            continue
-        blk = c // b
-        num = sum((k + 1 - abs(j)) * s[blk + j] for j in range(-k, k + 1) if 0 <= blk + j < nb)
-        den = sum((k + 1 - abs(j)) * n[blk + j] for j in range(-k, k + 1) if 0 <= blk + j < nb)
-        f[c] = num / den if den > 0 else np.nan
-    return f
+def ref_pass(x: np.ndarray, valid: np.ndarray, taps: np.ndarray, border: str) -> np.ndarray:
+    """One filtered axis (the last): at a usable pixel n the filter of the line in which every
+    pixel that is not usable holds x_n (the weight of those taps goes to n itself); the input
+    elsewhere, and where the output would not be a valid depth."""
+    out = x.astype(np.float64).copy()
+    c, pad = taps.size // 2, taps.size  # c: the tap that multiplies the pixel itself
 
+    def padded(a, outside):  # the border modes; ``zeros``: outside is a usable 0
+        if border == "zeros":
+            return np.pad(a, pad, mode="constant", constant_values=outside)
+        return np.pad(a, pad, mode={"reflect": "reflect", "replicate": "edge"}.get(border, "wrap"))
 
-def ref_pass(x: np.ndarray, valid: np.ndarray, taps: np.ndarray, border: str) -> tuple:
-    """One filtered axis (the last): (output, usable, filled lines)."""
-    out, usable, filled = x.astype(np.float64).copy(), np.zeros(x.shape, bool), np.zeros(x.shape)
     for idx in np.ndindex(*x.shape[:-1]):
         line, v = x[idx].astype(np.float64), valid[idx]
-        u = v & ~ref_outliers(line, v)
-        f = ref_fill(line, u, taps.size)
-        y = ndi.convolve1d(f, taps, mode=SCIPY_MODE[border])
-        good = u & np.isfinite(y) & (y > 0)  # a valid pixel that would ring to <= 0 keeps x
+        usable = v & ~ref_outliers(line, v)
+        ext, use = padded(np.where(usable, line, 0.0), 0.0), padded(usable, True)
+        y = np.empty(line.size)
+        for n in range(line.size):  # y_n = sum_k h_k (x_{n+c-k} if usable else x_n)
+            src = n + pad + c - np.arange(taps.size)
+            y[n] = np.sum(taps * np.where(use[src], ext[src], line[n]))
+        good = usable & np.isfinite(y) & (y > 0)
         out[idx] = np.where(good, y, line)
-        usable[idx], filled[idx] = u, f
-        assert np.isfinite(y[u]).all()  # no usable output reads an unreachable fill
-    return out, usable, filled
+    return out
 
 
 def reference(x: torch.Tensor, taps: np.ndarray, dims, border="reflect", mask=None) -> np.ndarray:
@@ -82,7 +70,7 @@ def reference(x: torch.Tensor, taps: np.ndarray, dims, border="reflect", mask=No
     for d in dims:
         if d == -2:
             xn, valid = np.swapaxes(xn, -1, -2), np.swapaxes(valid, -1, -2)
-        xn = ref_pass(xn, valid, taps, border)[0]
+        xn = ref_pass(xn, valid, taps, border)
         if d == -2:
             xn, valid = np.swapaxes(xn, -1, -2), np.swapaxes(valid, -1, -2)
     return xn
@@ -127,12 +115,29 @@ def test_matches_numpy_reference(order, dims, width):
 
 @pytest.mark.parametrize("border", list(SCIPY_MODE))
 def test_border_modes_and_float64(border):
+    """Also against SciPy in the form the module computes: ``h * x0 + (h * u) x`` with ``x0`` the
+    zero-filled depth and ``u`` the indicator of the pixels that are not usable (padded like the
+    depth; ``zeros``: outside is a usable 0)."""
     taps = design_fpn(20, 0.14).taps
     f = FPNFilter(taps, border=border)
     x = _depth((1, 2, 9, 50), seed=3).double()
     with torch.inference_mode():
-        y = f(x)
-    np.testing.assert_allclose(y.numpy(), reference(x, taps, (-1,), border), atol=1e-12)
+        y = f(x).numpy()
+    np.testing.assert_allclose(y, reference(x, taps, (-1,), border), atol=1e-12)
+    xn, valid = x.numpy(), valid_mask(x).numpy()
+    usable = np.stack(
+        [
+            [valid[b, c, r] & ~ref_outliers(xn[b, c, r], valid[b, c, r]) for r in range(9)]
+            for b in range(1)
+            for c in range(2)
+        ]
+    ).reshape(x.shape)
+    x0 = np.where(usable, xn, 0.0)
+    mode = SCIPY_MODE[border]
+    form = (
+        ndi.convolve1d(x0, taps, mode=mode) + ndi.convolve1d((~usable) * 1.0, taps, mode=mode) * x0
+    )
+    np.testing.assert_allclose(y[usable], form[usable], atol=1e-12)
 
 
 def test_outliers_found_as_described():
@@ -179,25 +184,24 @@ def test_chunked_inference_equals_the_branch_free_path(monkeypatch):
 
 
 def _bound_violations(x, y, taps, dims=(-1,), valid=None):
-    """Pixels where ``|y - x| > sum|h - delta| * max |x_m - x_n| + |H(0) - 1| |x_n|`` over the
-    usable pixels m within ``L // 2 + 8 K + 7`` of n along the axis (runtime/holes.py), for one
-    filtered axis; returns (count, worst excess, largest move)."""
+    """Pixels where ``|y - x| > sum_{k != c} |h_k| * max |x_m - x_n| + |H(0) - 1| |x_n|`` over the
+    usable pixels m the filter reaches from n along the axis (runtime/holes.py), for one filtered
+    axis; returns (count, worst excess, largest move)."""
     (d,) = dims
     xn, yn = x.double().numpy(), y.double().numpy()
     v = (valid_mask(x) if valid is None else valid).numpy()
     if d == -2:
         xn, yn, v = (np.swapaxes(a, -1, -2) for a in (xn, yn, v))
     h = np.asarray(taps, np.float64)
-    delta = np.zeros_like(h)
-    delta[h.size // 2] = 1.0
-    gain, dc = np.abs(h - delta).sum(), abs(h.sum() - 1.0)
-    reach = h.size // 2 + 8 * (-(-(h.size // 2) // 8)) + 7
+    gain, dc = np.abs(h).sum() - abs(h[h.size // 2]), abs(h.sum() - 1.0)
+    right = h.size // 2
+    left = h.size - 1 - right
     count, excess, moved = 0, 0.0, 0.0
     for idx in np.ndindex(*xn.shape[:-1]):
         line, out, vv = xn[idx], yn[idx], v[idx]
         u = vv & ~ref_outliers(line, vv)
         for n in np.flatnonzero(u):
-            lo, hi = max(0, n - reach), min(line.size, n + reach + 1)
+            lo, hi = max(0, n - left), min(line.size, n + right + 1)
             near = line[lo:hi][u[lo:hi]]
             allowed = gain * np.abs(near - line[n]).max() + dc * abs(line[n]) + 1e-5 * line[n]
             move = abs(out[n] - line[n])

@@ -6,16 +6,16 @@ Convention: ``y[n] = sum_k h[k] x[n + L // 2 - k]`` for ``L`` taps, i.e. the sam
 
 Speed: a direct convolution costs ``L`` multiply-adds per sample and ``F.conv1d`` does not reach
 BLAS speed for one long single-channel kernel. The rows are consecutive in memory, so the flattened
-batch is one long signal. For float32 on CPU (inference) that signal, viewed as (n / P, P), is a
-channels-last image whose ``P = 16`` channels are its polyphase components; the FIR is then one
-16-in, 16-out convolution with ``K = ceil((L - 1) / P) + 1`` taps that oneDNN runs at GEMM speed,
-read straight from the input and written straight into the output (:func:`fir_polyphase`). Other
-dtypes and devices cut the signal into blocks of ``M >= L - 1`` samples; each block of output is
-one row of two small GEMMs with banded Toeplitz matrices (:func:`fir_inplace`). Either way only the
-``L - 1`` border columns of each row, whose window crosses a row end, are then redone: the padding
-is folded into small matrices and all row seams are one more GEMM (:func:`redo_borders`). With
-autograd, or when tracing for export, the mathematically identical out-of-place
-:func:`fir_blocked` is used.
+batch is one long signal. For float32 on CPU (inference) that signal, viewed as (n / 8, 8), is a
+channels-last image whose 8 channels are its polyphase components; the FIR is then one 8-in,
+32-out convolution with stride 4 and ``K = ceil((L + 31) / 8)`` taps (``8 K`` multiply-adds per
+sample: 56 for 21 taps, 80 for 42) that oneDNN runs at GEMM speed, read straight from the input and
+written straight into the output (:func:`fir_polyphase`). Other dtypes and devices cut the signal
+into blocks of ``M >= L - 1`` samples; each block of output is one row of two small GEMMs with
+banded Toeplitz matrices (:func:`fir_inplace`). Either way only the ``L - 1`` border columns of
+each row, whose window crosses a row end, are then redone: the padding is folded into small
+matrices and all row seams are one more GEMM (:func:`redo_borders`). With autograd, or when tracing
+for export, the mathematically identical out-of-place :func:`fir_blocked` is used.
 
 The small matrices depend only on the taps and the border mode: :func:`fir_operators` builds them
 once, and :class:`~tof_fpn_torch.runtime.FPNFilter` keeps them as buffers.

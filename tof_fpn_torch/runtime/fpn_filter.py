@@ -26,8 +26,8 @@ from torch.nn.utils import parametrize
 
 from ._checks import check_image, check_taps, normalize_dims
 from .fir import BORDER_MODES, fir_last, fir_operators
-from .holes import certified, fill_reach, holed_exact, holed_lines, outlier_ratio, tap_gains
-from .validity import all_valid, valid_mask, valid_range, zero_codes
+from .holes import certified, holed_exact, holed_lines, outlier_ratio, tap_gains
+from .validity import all_valid, valid_mask, valid_range, zero_holes_max
 
 __all__ = ["FPNFilter", "fpn_filter"]
 
@@ -77,17 +77,13 @@ def _fpn_filter(
     work = x.float() if x.dtype == torch.float16 or x.dtype == torch.bfloat16 else x
     tracing = _tracing()
     fast = not tracing and not (torch.is_grad_enabled() and (x.requires_grad or taps.requires_grad))
-    reach = fill_reach(taps.shape[0])
     shape = list(work.shape)
     rng: tuple[float, float] | None = None
     if not tracing and mask is None:
         rng = valid_range(work)  # one min/max: the clean frame's shortcut
-    zeros = False
     valid: torch.Tensor | None = None
-    if rng is None:
-        zeros = fast and mask is None and zero_codes(work)
-        if not zeros:
-            valid = valid_mask(work, mask=mask)
+    if rng is None and (not fast or mask is not None or zero_holes_max(work) is None):
+        valid = valid_mask(work, mask=mask)  # else: the invalid pixels are the +0.0 ones
     gains = (0.0, 0.0) if tracing else tap_gains(taps)
     y = work
     for i, d in enumerate(dims):
@@ -101,11 +97,14 @@ def _fpn_filter(
                 rng = valid_range(y)
             continue
         if fast:
+            top = r[1] if r is not None else zero_holes_max(y) if valid is None else None
+            zeros = top is not None
+            peak = 0.0 if top is None else top
             v2 = None if valid is None else _lines(valid, d)
-            y2 = holed_lines(_lines(y, d), v2, taps, border, taps_ops, reach, gains, zeros)
+            y2 = holed_lines(_lines(y, d), v2, taps, border, taps_ops, gains, zeros, peak)
         else:
             vm = valid if valid is not None else valid_mask(y)
-            y2 = holed_exact(_lines(y, d), _lines(vm, d), taps, border, taps_ops, reach, fast)
+            y2 = holed_exact(_lines(y, d), _lines(vm, d), taps, border, taps_ops, fast)
         y = _unlines(y2, shape, d)
         if r is not None and i + 1 < len(dims):
             rng = valid_range(y)

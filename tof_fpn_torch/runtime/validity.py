@@ -18,7 +18,7 @@ import math
 
 import torch
 
-__all__ = ["all_valid", "valid_mask", "valid_range"]
+__all__ = ["all_valid", "valid_mask", "valid_range", "zero_holes_max"]
 
 
 def valid_mask(
@@ -91,11 +91,12 @@ def valid_range(depth: torch.Tensor) -> tuple[float, float] | None:
     return None
 
 
-def zero_codes(depth: torch.Tensor) -> bool:
-    """True when every invalid value of float32 ``depth`` is ``+0.0`` and every other value is a
-    valid depth: no negative number (nor ``-0.0``), no NaN, no infinity (one integer min/max on the
-    bit patterns, eager mode; False when it cannot tell, e.g. under TorchScript)."""
+def zero_holes_max(depth: torch.Tensor) -> float | None:
+    """The largest value of float32 ``depth`` when every invalid value in it is ``+0.0`` (no
+    negative number, nor ``-0.0``, no NaN, no infinity), else None: one integer min/max on the
+    bit patterns (eager mode; None when it cannot tell, e.g. under TorchScript)."""
     if depth.numel() > 0 and depth.dtype == torch.float32 and not torch.jit.is_scripting():
         lo, hi = torch.aminmax(depth.view(torch.int32))
-        return bool(lo >= 0) and bool(hi < 0x7F800000)
-    return False
+        if bool(lo >= 0) and bool(hi < 0x7F800000):
+            return float(hi.view(torch.float32))
+    return None
