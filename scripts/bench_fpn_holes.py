@@ -142,9 +142,7 @@ def main() -> None:
     load = os.getloadavg()[0]
     results = [bench_order(args, order, rho.get(order, 0.12)) for order in args.orders]
     out = {
-        "command": "python " + " ".join(
-            [str(Path(sys.argv[0]).as_posix())] + [a for a in sys.argv[1:]]
-        ),
+        "command": "python " + " ".join(sys.argv),
         "config": {
             **{k: v for k, v in vars(args).items() if k != "json"},
             "dtype": "float32",

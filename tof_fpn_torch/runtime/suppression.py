@@ -14,15 +14,15 @@ depth by amplitude (eq. 11). :class:`FPNSuppression` composes, in this order:
    estimate of the destriper sees only the broadband rest.
 
 **How far a valid pixel moves.** Steps 1-3 change a valid pixel by ``g w (y - x)``: the filter's
-change ``y - x`` times the fusion weight ``w`` (in [0.2, 1], or [floor, 1]) and the gate ``g`` (in
-[0, 1]); so, gate on or off, no valid pixel moves further than the filter lets it
-(:mod:`~tof_fpn_torch.runtime.holes`): ``|y_n - x_n| <= sum_k |h_k - delta_k| * max |x_m - x_n|
-+ |H(0) - 1| |x_n|``, the maximum over the *usable* depths ``x_m`` on the filtered line within
-``L // 2 + 8 K + 7`` pixels (``K = ceil((L // 2) / 8)``). Usable means valid and not an isolated
-outlier (more than 3 times, or under a third of, each valid neighbour along the line): a 3.6 m
-return among 0.35 m moves none of its neighbours. ``sum |h - delta|`` is 1.37 for the default
-``{20, 0.14}`` design, and ``H(0) = 1`` unless ``unit_dc=False``. Step 4 (``destripe``) then
-subtracts its column / row offsets.
+change ``y - x`` times the fusion weight ``w`` (in [floor, 1]) and the gate ``g`` (in [0, 1]); so,
+gate on or off, no valid pixel moves further than the filter lets it
+(:mod:`~tof_fpn_torch.runtime.holes`): ``|y_n - x_n| <= sum_{k != c} |h_k| * max |x_m - x_n| +
+|H(0) - 1| |x_n|``, the maximum over the *usable* depths ``x_m`` within the filter's support on the
+filtered line, ``c`` the pixel's own tap. Usable means valid and not an isolated outlier (more than
+3 times, or under a third of, each valid neighbour along the line): a 3.6 m return among 0.35 m
+moves none of its neighbours. ``sum_{k != c} |h_k|`` is 1.13 for the default ``{20, 0.14}``
+design, and ``H(0) = 1`` unless ``unit_dc=False``. Step 4 (``destripe``) then subtracts its column
+/ row offsets.
 
 Build one with :func:`tof_fpn_torch.build.suppression_from_design` (the paper's ``{20, 0.14}``,
 unit DC gain) or :func:`tof_fpn_torch.build.suppression_from_data` (pieces picked from what is
