@@ -252,3 +252,20 @@ def test_state_dicts_of_earlier_versions_load():
     g = filter_from_design(20, 0.14)
     g.load_state_dict(state)
     assert torch.equal(g.taps, f.taps) and "window" not in g.state_dict()
+
+
+@pytest.mark.parametrize("border", list(SCIPY_MODE))
+def test_a_valid_pixel_never_comes_out_invalid(border):
+    """A steep step (0.3 m to 3 m) makes the filter ring below 0 next to it, and the ``zeros``
+    border pulls the first and last columns towards 0: the input is kept there, with and
+    without holes."""
+    f = filter_from_design(20, 0.14, border=border)
+    x = torch.full((2, 1, 6, 64), 3.0)
+    x[..., 32:] = 0.3
+    x[1, 0, 2, 10] = 0.0  # a hole in the second image
+    with torch.inference_mode():
+        y = f(x)
+    valid = valid_mask(x)
+    assert bool(valid_mask(y)[valid].all()) and torch.equal(y[~valid], x[~valid])
+    ref = reference(x, f.taps.numpy(), (-1,), border)
+    np.testing.assert_allclose(y.double().numpy(), ref, rtol=0, atol=2e-5)

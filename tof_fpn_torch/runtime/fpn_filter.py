@@ -27,7 +27,7 @@ from torch.nn.utils import parametrize
 from ._checks import check_image, check_taps, normalize_dims
 from .fir import BORDER_MODES, fir_last, fir_operators
 from .holes import certified, holed_exact, holed_lines, outlier_ratio, tap_gains
-from .validity import all_valid, valid_mask, valid_range, zero_holes_max
+from .validity import all_valid, valid_mask, valid_range
 
 __all__ = ["FPNFilter", "fpn_filter"]
 
@@ -80,10 +80,10 @@ def _fpn_filter(
     shape = list(work.shape)
     rng: tuple[float, float] | None = None
     if not tracing and mask is None:
-        rng = valid_range(work)  # one min/max: the clean frame's shortcut
+        rng = valid_range(work, fast)  # one min/max: the clean frame's shortcut
     valid: torch.Tensor | None = None
-    if rng is None and (not fast or mask is not None or zero_holes_max(work) is None):
-        valid = valid_mask(work, mask=mask)  # else: the invalid pixels are the +0.0 ones
+    if rng is None:
+        valid = valid_mask(work, mask=mask)  # else all valid, or the invalid ones are the +0.0
     gains = (0.0, 0.0) if tracing else tap_gains(taps)
     y = work
     for i, d in enumerate(dims):
@@ -91,23 +91,21 @@ def _fpn_filter(
         if r is not None and r[1] < outlier_ratio() * r[0]:  # all valid, no outlier: plain FIR
             prev = y
             y = _along(y, taps, d, border, taps_ops, fast)
-            if not certified(r[0], r[1], gains):  # ringing past 0 next to a steep step
+            if not certified(r[0], r[1], gains, border):  # ringing past 0 at a steep step
                 y = _keep_valid(y, prev)
             if i + 1 < len(dims):
-                rng = valid_range(y)
+                rng = valid_range(y, fast)
             continue
         if fast:
-            top = r[1] if r is not None else zero_holes_max(y) if valid is None else None
-            zeros = top is not None
-            peak = 0.0 if top is None else top
+            top = 0.0 if r is None else r[1]
             v2 = None if valid is None else _lines(valid, d)
-            y2 = holed_lines(_lines(y, d), v2, taps, border, taps_ops, gains, zeros, peak)
+            y2 = holed_lines(_lines(y, d), v2, taps, border, taps_ops, gains, top)
         else:
             vm = valid if valid is not None else valid_mask(y)
             y2 = holed_exact(_lines(y, d), _lines(vm, d), taps, border, taps_ops, fast)
         y = _unlines(y2, shape, d)
         if r is not None and i + 1 < len(dims):
-            rng = valid_range(y)
+            rng = valid_range(y, fast)
     return y.to(out_dtype)
 
 

@@ -87,10 +87,12 @@ def isolated_outliers(x0: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return deep | shallow
 
 
-def certified(lo: float, hi: float, gains: tuple[float, float]) -> bool:
+def certified(lo: float, hi: float, gains: tuple[float, float], border: str) -> bool:
     """Every FIR output of inputs in [lo, hi] is valid: ``sum h+ lo - sum |h-| hi`` stays above the
-    float rounding of the sums, and the largest output is finite."""
+    float rounding of the sums, and the largest output is finite (``zeros`` borders add inputs 0)."""
     pos, neg = gains
+    if border == "zeros":
+        lo = 0.0
     margin = 1e-4 * (pos + neg) * hi
     return pos * lo - neg * hi > margin and (pos + neg) * hi < 1e37
 
@@ -103,7 +105,7 @@ def tap_gains(taps: torch.Tensor) -> tuple[float, float]:
 
 def _chunk_samples() -> int:
     """Samples per chunk of :func:`holed_lines` (a function: TorchScript reads no globals)."""
-    return 1 << 20
+    return 1 << 18
 
 
 def holed_lines(
@@ -113,24 +115,23 @@ def holed_lines(
     border: str,
     ops: list[torch.Tensor],
     gains: tuple[float, float],
-    zeros: bool,
     top: float,
 ) -> torch.Tensor:
-    """Inference: the rule on (R, W) lines, in chunks of about 1 M samples (their temporaries stay
-    in the cache). ``valid2`` None: all valid; ``zeros``: the invalid pixels are exactly the +0.0
-    ones, and ``top`` is the largest valid depth. Outliers are searched only in chunks whose valid
-    depths span more than a factor 3 (elsewhere there can be none)."""
+    """Inference: the rule on (R, W) lines, in chunks of :func:`_chunk_samples` (their temporaries
+    stay in the cache). ``valid2``: the valid pixels, or None when they are all the others than the
+    +0.0 ones (maybe all), ``top`` then the largest depth. Outliers are searched only in chunks
+    whose valid depths span more than a factor 3 (elsewhere there can be none)."""
     r, w = x2.shape[0], x2.shape[1]
     out = torch.empty_like(x2)
     rows = max(1, _chunk_samples() // w)
-    exact_codes = valid2 is None or zeros  # every unusable value is finite and not -0.0
+    exact_codes = valid2 is None  # every unusable value is finite and not -0.0: lerp is exact
     for r0 in range(0, r, rows):
         r1 = min(r, r0 + rows)
         xc = x2[r0:r1]
         both = torch.empty((2, r1 - r0, w), dtype=x2.dtype, device=x2.device)
         x0, u = both[0], both[1]  # zero-filled depth, not-usable indicator: one FIR for both
         peak = top
-        if valid2 is not None and not zeros:
+        if valid2 is not None:
             vb = valid2[r0:r1]
             torch.where(vb, xc, torch.zeros_like(xc), out=x0)
             u.copy_(~vb)
@@ -152,7 +153,7 @@ def holed_lines(
             torch.lerp(y, xc, u, out=oc)
         else:
             torch.where(u > 0, xc, y, out=oc)
-        if not certified(float(lo), float(hi), gains):  # a valid pixel must stay valid
+        if not certified(float(lo), float(hi), gains, border):  # a valid pixel stays valid
             oc.copy_(torch.where((u < 1) & ~valid_mask(oc), xc, oc))
     return out
 

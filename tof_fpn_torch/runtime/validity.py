@@ -18,7 +18,7 @@ import math
 
 import torch
 
-__all__ = ["all_valid", "valid_mask", "valid_range", "zero_holes_max"]
+__all__ = ["all_valid", "valid_mask", "valid_range"]
 
 
 def valid_mask(
@@ -73,30 +73,21 @@ def all_valid(depth: torch.Tensor) -> bool:
     return bool(lo > 0) and bool(hi < math.inf)
 
 
-def valid_range(depth: torch.Tensor) -> tuple[float, float] | None:
+def valid_range(depth: torch.Tensor, zeros: bool = False) -> tuple[float, float] | None:
     """``(min, max)`` of ``depth`` when every value is valid (finite, > 0), else None: the same
     one reduction as :func:`all_valid` (for float32 in eager mode on the bit patterns, whose order
-    is the order of the values for positive floats)."""
+    is the order of the values for positive floats). With ``zeros`` (float32, eager mode) also
+    ``(0.0, max)`` when the invalid values are all ``+0.0``: no negative number, nor ``-0.0``, no
+    NaN, no infinity."""
     if depth.numel() == 0:
         return None
     if depth.dtype == torch.float32 and not torch.jit.is_scripting():
         lo, hi = torch.aminmax(depth.view(torch.int32))
-        if bool(lo > 0) and bool(hi < 0x7F800000):
+        if (bool(lo > 0) or (zeros and bool(lo == 0))) and bool(hi < 0x7F800000):
             pair = torch.stack([lo, hi]).view(torch.float32).tolist()
             return float(pair[0]), float(pair[1])
         return None
     lo, hi = torch.aminmax(depth.detach())
     if bool(lo > 0) and bool(hi < math.inf):
         return float(lo), float(hi)
-    return None
-
-
-def zero_holes_max(depth: torch.Tensor) -> float | None:
-    """The largest value of float32 ``depth`` when every invalid value in it is ``+0.0`` (no
-    negative number, nor ``-0.0``, no NaN, no infinity), else None: one integer min/max on the
-    bit patterns (eager mode; None when it cannot tell, e.g. under TorchScript)."""
-    if depth.numel() > 0 and depth.dtype == torch.float32 and not torch.jit.is_scripting():
-        lo, hi = torch.aminmax(depth.view(torch.int32))
-        if bool(lo >= 0) and bool(hi < 0x7F800000):
-            return float(hi.view(torch.float32))
     return None
