@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import torch
 
-from .fir import fir_last
+from .fir import _phases, fir_last, fir_operators, fir_polyphase
 from .validity import valid_mask
 
 __all__ = [
@@ -125,6 +125,12 @@ def holed_lines(
     out = torch.empty_like(x2)
     rows = max(1, _chunk_samples() // w)
     exact_codes = valid2 is None  # every unusable value is finite and not -0.0: lerp is exact
+    # the polyphase kernel straight away (fir_last's checks once per call, not per chunk)
+    direct = x2.dtype == torch.float32 and x2.device.type == "cpu" and w >= taps.shape[0]
+    direct = direct and 2 * min(rows, r) * w >= 2 * _phases()
+    g = taps.flip(0).to(device=x2.device, dtype=x2.dtype)
+    if direct and len(ops) == 0:
+        ops = fir_operators(taps, border)
     for r0 in range(0, r, rows):
         r1 = min(r, r0 + rows)
         xc = x2[r0:r1]
@@ -146,7 +152,10 @@ def holed_lines(
                 u.masked_fill_(odd, 1.0)
                 x0.masked_fill_(odd, 0.0)
                 lo, hi = torch.aminmax(torch.addcmul(x0, u, torch.full_like(x0[:1, :1], peak)))
-        y2 = fir_last(both.view(-1, w), taps, border, ops, True)
+        if direct and 2 * (r1 - r0) * w >= 2 * _phases():
+            y2 = fir_polyphase(both.view(-1, w), g, border, ops)
+        else:
+            y2 = fir_last(both.view(-1, w), taps, border, ops, True)
         y = y2[: r1 - r0].addcmul_(y2[r1 - r0 :], x0)
         oc = out[r0:r1]
         if exact_codes:
