@@ -2,7 +2,8 @@
 
 ``ours`` is the module as a user calls it: argument checks and the validity check (one integer
 min/max over the input) included. ``ours_kernel`` is the bare FIR kernel, ``ours_1%_holes`` the
-module on the same frames with 1 % invalid pixels (mask, fill, filter, write-back).
+module on the same frames with 1 % invalid pixels (mask, two FIRs, write-back; see
+``bench_fpn_holes.py``).
 
 Usage::
 
@@ -87,7 +88,7 @@ def main() -> None:
 
     f = filter_from_design(args.order, args.rho, compensate_delay=False, allow_shift=True)
     ops = [f._taps_op0, f._taps_op1, f._taps_op2, f._taps_op3]
-    holes = x.clone()  # a real capture's case: 1 % invalid pixels take the fill path
+    holes = x.clone()  # a real capture's case: 1 % invalid pixels take the hole path
     holes.view(-1)[torch.randperm(holes.numel(), generator=gen)[: holes.numel() // 100]] = 0.0
     taps = f.taps.numpy()
     length = taps.size
@@ -103,7 +104,7 @@ def main() -> None:
         with torch.inference_mode():
             return fir_last(x, f.taps, "reflect", ops, True)
 
-    def ours_holes():  # 1 % invalid pixels: validity mask, fill, filter, write-back
+    def ours_holes():  # 1 % invalid pixels: validity mask, two FIRs, write-back
         with torch.inference_mode():
             return f(holes)
 
