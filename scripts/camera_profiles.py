@@ -5,7 +5,7 @@ Usage::
     python scripts/camera_profiles.py
 
 Prints, for every capture with an amplitude channel in ../shared/data/real, the fitted noise law
-``sigma_D = k / A`` and the thresholds :func:`tof_fpn_torch.build.fusion_from_data` places at 4 %
+``sigma_D = k / A`` and the thresholds :func:`tof_fpn_torch.build.fusion_from_noise` places at 4 %
 and 0.8 % relative depth noise, and checks the rule on the paper's own synthetic data (it must give
 about 70 and 350 there).
 """
@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from tof_fpn_torch import io as tio
-from tof_fpn_torch.build import fusion_from_data
+from tof_fpn_torch.build import fusion_from_noise
 from tof_fpn_torch.denoise import estimate_noise_k
 from tof_fpn_torch.experiments.common import make_synthetic_data
 from tof_fpn_torch.runtime import valid_mask
@@ -30,7 +30,7 @@ REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 def _report(name: str, depth: torch.Tensor, amp: torch.Tensor, unit: str) -> None:
     valid = valid_mask(depth, amp)
     k = float(estimate_noise_k(depth, amp, valid=valid).mean())
-    fusion = fusion_from_data(depth, amp)
+    fusion = fusion_from_noise(depth, amp)
     print(
         f"{name:28s} k = {k:9.3f} {unit} x amplitude, median depth {float(depth[valid].median()):8.3f}"
         f" {unit}: low {fusion.low:8.2f}, high {fusion.high:8.2f}"

@@ -7,7 +7,6 @@ import importlib.util
 import math
 from pathlib import Path
 
-import pytest
 import torch
 
 from tof_fpn_torch.analysis.metrics import psnr
@@ -65,17 +64,26 @@ def test_odd_widths_do_not_double_the_depth():
         assert float((y - 2.0).std()) < 0.5 * float((x - 2.0).std())
 
 
-def test_from_data_measures_its_thresholds_on_noisy_frames():
-    """Table I's FPN + noise input: the thresholds fusion_from_data measures are the paper's 70 and
-    350 (within the seeds' spread), and the stage it builds gains as the paper's does."""
+def test_from_data_fits_its_fusion_to_the_stripes_on_noisy_frames():
+    """Table I's FPN + noise input (the paper's eq. (10) stripes, strongest at low amplitude): the
+    fusion fitted to the measured stripes gains at least what the best of a grid of design stages
+    chosen by the truth gains (measured: 4.13 dB against 4.01; the paper's 70 / 350: 4.00)."""
+    import itertools
+
     from tof_fpn_torch.experiments.common import make_synthetic_data
 
     data = make_synthetic_data((0,), 204)
     x, gt, amp = data.inputs["fpn+noise"], data.depth, data.amplitude
+    p0 = float(psnr(x, gt))
     stage = suppression_from_data(x, amp)
-    assert 40 < stage.fusion.low < 110  # seed 0 has the largest noise (lambda), 70 for the mean
-    assert stage.fusion.high == pytest.approx(5 * stage.fusion.low, rel=1e-12)
-    assert float(psnr(stage(x, amp), gt)) > float(psnr(x, gt)) + 3.0
+    gain = float(psnr(stage(x, amp), gt)) - p0
+    grid = itertools.product((0.0, 35.0, 70.0, 140.0), (35.0, 140.0, 280.0), (0.0, 0.2, 0.5))
+    best = max(
+        float(psnr(suppression_from_design(low=lo, high=lo + span, floor=f)(x, amp), gt)) - p0
+        for lo, span, f in grid
+    )
+    assert best > 3.0
+    assert gain >= 0.95 * best, (gain, best, stage.fusion)
 
 
 def test_from_data_removes_the_adi_walls_broadband_column_offsets(real_data):

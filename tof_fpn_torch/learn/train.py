@@ -10,8 +10,8 @@ Front ends (:data:`FRONT_ENDS`):
 * ``fixed+nlm``: the fixed stage, then amplitude-aware NLM (``sigma = k / A``), then the network.
 
 The fusion thresholds of the stage are measured once on a calibration batch of the simulator's own
-frames (:func:`~tof_fpn_torch.build.fusion_from_data`): the simulator's amplitudes are DN, not
-CamCube units. The stripe gate (which leaves a frame without detected periodic stripes unchanged)
+frames (:func:`~tof_fpn_torch.build.fusion_from_noise`, the paper's thresholds carried over by the
+noise law): the simulator's amplitudes are DN, not CamCube units. The stripe gate (which leaves a frame without detected periodic stripes unchanged)
 is off in the learned front ends, so that the network sees one kind of input whatever the frame
 (with the gate on it sees filtered and raw frames mixed; measured: no significant difference at
 the default budget, ``docs/learn.md``).
@@ -29,7 +29,7 @@ from torch import nn
 from torch.utils.data import DataLoader
 
 from ..analysis.metrics import psnr
-from ..build import fusion_from_data, suppression_from_design, trainable_suppression
+from ..build import fusion_from_noise, suppression_from_design, trainable_suppression
 from ..denoise import NonLocalMeans
 from .dataset import SimulatedFrames, draw_sample
 from .models import DepthModel, DnCNN
@@ -78,7 +78,7 @@ def fusion_thresholds(size: tuple[int, int] = (96, 96), frames: int = 16) -> tup
     items = [draw_sample(CALIBRATION_SEED, i, size) for i in range(frames)]
     depth = torch.stack([it[0] for it in items])
     amp = torch.stack([it[1] for it in items])
-    fusion = fusion_from_data(depth, amp)
+    fusion = fusion_from_noise(depth, amp)
     return fusion.low, fusion.high
 
 

@@ -63,6 +63,13 @@ class FPNSuppression(Float32Stage):
         gate: apply the notch part through the per-image stripe gate.
         min_stripe: the gate's floor: the smallest stripe amplitude, in units of the per-pixel
             noise, that opens it.
+        stripe_scale: the factor the gate's risk check applies to the stripe power it reads off
+            a frame's column profile (> 0; 1: as read). The profile averages the stripes down
+            each column, so where their strength varies with the amplitude the read power is
+            the square of a mean, below the mean square the notch removes (2.6x on a planar
+            scene with stripes ``exp(-A / 40)``); a builder that measured the stripes against
+            the amplitude on calibration frames sets it
+            (:func:`tof_fpn_torch.build.suppression_from_data`).
 
     Shape:
         - depth: (B, 1, H, W) float; invalid pixels (NaN, +-inf, <= 0, or an amplitude that is NaN,
@@ -87,6 +94,7 @@ class FPNSuppression(Float32Stage):
         destripe: nn.Module | None = None,
         gate: bool = True,
         min_stripe: float = K.GATE_MIN_STRIPE,
+        stripe_scale: float = 1.0,
     ) -> None:
         super().__init__()
         if filter is not None and not isinstance(filter, FPNFilter):
@@ -107,11 +115,14 @@ class FPNSuppression(Float32Stage):
             )
         if not (isinstance(min_stripe, (int, float)) and 0.0 <= min_stripe < math.inf):
             raise ValueError(f"min_stripe must be a finite number >= 0, got {min_stripe!r}")
+        if not (isinstance(stripe_scale, (int, float)) and 0.0 < stripe_scale < math.inf):
+            raise ValueError(f"stripe_scale must be a finite number > 0, got {stripe_scale!r}")
         self.filter = filter
         self.fusion = fusion
         self.destripe = destripe
         self.gate = bool(gate) and filter is not None
         self.min_stripe = float(min_stripe)
+        self.stripe_scale = float(stripe_scale)
         self.noise_gain = 0.0 if filter is None else _noise_gain(filter.taps)
         self.centre = 1.0 if filter is None else _centre(filter.taps, len(filter.dims))
         self.estimate = None  # the stripe estimate, when a builder made this module from data
@@ -132,7 +143,7 @@ class FPNSuppression(Float32Stage):
         return self.fusion is not None
 
     def extra_repr(self) -> str:
-        return f"gate={self.gate}, min_stripe={self.min_stripe}"
+        return f"gate={self.gate}, min_stripe={self.min_stripe}, stripe_scale={self.stripe_scale}"
 
     def _forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
         check_image(depth, "depth", 1)
@@ -183,6 +194,7 @@ class FPNSuppression(Float32Stage):
         if fusion is not None and amplitude is not None:  # the fusion is affine in its inputs:
             weight = fusion(weight + 1.0, weight, amplitude) - 1.0  # its weight w_p, any kind
         noise = noise_power(depth, amplitude, mask)
+        stripes = stripes * self.stripe_scale
         g = g * risk_shrinkage(out - depth, weight, noise, stripes, self.centre, mask)
         blended = depth + g.to(depth.dtype) * (out - depth)
         if mask is None:
