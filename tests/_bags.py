@@ -51,6 +51,7 @@ def write_ros1(path, topics: dict[str, tuple[np.ndarray, str]], times=None, **kw
     """A ROS 1 bag: ``topics[name] = (frames (T, H, W), encoding)``, one message per frame at
     ``times[name]`` (default :func:`stamps`), header stamp = record time."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     with Writer1(path) as w:
         for topic, (frames, enc) in topics.items():
             conn = w.add_connection(topic, IMAGE, typestore=ROS1)
@@ -62,6 +63,7 @@ def write_ros1(path, topics: dict[str, tuple[np.ndarray, str]], times=None, **kw
 def write_ros2(path, topics, storage="sqlite3", times=None, **kw) -> Path:
     """A ROS 2 bag folder (CDR), like :func:`write_ros1`; ``storage``: sqlite3 or mcap."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     plugin = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}[storage]
     with Writer2(path, version=9, storage_plugin=plugin) as w:
         for topic, (frames, enc) in topics.items():
@@ -88,6 +90,7 @@ def write_realsense(
     ``per_frame``, librealsense's float32 depth unit after every image's data (its header's
     ``frame_id`` then is ``"1"``)."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     kv = "diagnostic_msgs/msg/KeyValue"
     with Writer1(path) as w:
         version = w.add_connection("/file_version", "std_msgs/msg/UInt32", typestore=ROS1)
