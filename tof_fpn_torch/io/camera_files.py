@@ -1,19 +1,15 @@
 """Camera files by name: the recordings of camera tools and the vendor-named raw files, read (and,
 for ``tof-fpn clean``, written back) like the frame files of :mod:`.stored`.
 
-=============================================  ======================================  ==========
-file (``<H>x<W>``: rows x columns, any size)   holds                                   camera
-=============================================  ======================================  ==========
-``<name>.mkv``                                 Azure Kinect recording (:mod:`.matroska`)  azure_kinect
-``<name>.bag``                                 ROS 1 bag; librealsense recordings too  realsense
-                                               (:mod:`.rosbag`)                        or None
-folder with ``metadata.yaml``;                 ROS 2 bag (:mod:`.rosbag`)              None
-``<name>.mcap``, ``<name>.db3``
-``<name>_depth_u16le_<H>x<W>.bin`` +           ADI ADTF3175 depth (mm) + IR (counts),  adtf3175
-``<name>_ir_u16le_<H>x<W>.bin``                raw uint16 LE (``.raw`` too)
-``<name>_interleaved_<H>x<W>.bin``             ADI ADTF3175 interleaved: 5 bytes per   adtf3175
-                                               pixel (depth, confidence, AB)
-=============================================  ======================================  ==========
+* ``<name>.mkv``: an Azure Kinect recording (:mod:`.matroska`), camera ``azure_kinect``;
+* ``<name>.bag``: a ROS 1 bag (:mod:`.rosbag`), camera ``realsense`` for librealsense recordings;
+* a folder with a rosbag2 ``metadata.yaml``, ``<name>.mcap``, ``<name>.db3``: a ROS 2 bag;
+* ``<name>_depth_u16le_<H>x<W>.bin`` + ``<name>_ir_u16le_<H>x<W>.bin`` (``.raw`` too, any case):
+  ADI ADTF3175 depth (mm) + IR (counts), raw uint16 LE, camera ``adtf3175``;
+* ``<name>_interleaved_<H>x<W>.bin``: ADI ADTF3175 interleaved, 5 bytes per pixel (depth u16 LE
+  mm, confidence u8, AB u16 LE), camera ``adtf3175``.
+
+``<H>x<W>`` is rows x columns, any size.
 
 A recording container (``.mkv``, a bag) is read whole into a :class:`~.recording.Recording`; as
 a :class:`~.stored.FrameSet` it is float32 metres with NaN (``depth_scale`` 1) and keeps the

@@ -23,7 +23,8 @@ holding a ``depth`` and an ``amplitude`` dataset (the root included) is one, key
 :func:`frame_set_tensors` turns a set into the package's tensors (depth metres, NaN invalid;
 amplitude camera units) and :func:`encode_depth` turns cleaned depth (metres) back into the stored
 dtype, leaving the stored value of every invalid input pixel as it was. Decoding errors raise
-:class:`FormatError` naming the file.
+:class:`FormatError` naming the file. Camera files (an Azure Kinect ``.mkv``, ROS bags, ADI
+vendor-named raw files) are read and written through :mod:`.camera_files`.
 """
 
 from __future__ import annotations
