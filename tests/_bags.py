@@ -47,12 +47,18 @@ def image(ts, arr: np.ndarray, encoding: str, stamp: int, *, big=False, pad=0, f
     )
 
 
-def write_ros1(path, topics: dict[str, tuple[np.ndarray, str]], times=None, **kw) -> Path:
+def write_ros1(
+    path, topics: dict[str, tuple[np.ndarray, str]], times=None, compression=None, **kw
+) -> Path:
     """A ROS 1 bag: ``topics[name] = (frames (T, H, W), encoding)``, one message per frame at
-    ``times[name]`` (default :func:`stamps`), header stamp = record time."""
+    ``times[name]`` (default :func:`stamps`), header stamp = record time; ``compression``:
+    ``"lz4"`` or ``"bz2"`` chunks (realsense-viewer writes lz4)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with Writer1(path) as w:
+    writer = Writer1(path)
+    if compression:
+        writer.set_compression(Writer1.CompressionFormat[compression.upper()])
+    with writer as w:
         for topic, (frames, enc) in topics.items():
             conn = w.add_connection(topic, IMAGE, typestore=ROS1)
             for frame, t in zip(frames, (times or {}).get(topic, stamps(len(frames))), strict=True):

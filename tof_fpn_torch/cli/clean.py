@@ -4,8 +4,8 @@ Stages and settings come from ``--config FILE.toml`` (format: :mod:`tof_fpn_torc
 and flags (a flag wins over the file); the resolved configuration is saved as
 ``OUTPUT/clean.toml`` with the package version. Exit status: 0; 1 when some files failed (their
 count printed, their reasons in ``OUTPUT/manifest.jsonl``); 2 for a bad argument, an INPUT with
-nothing to clean or an OUTPUT that would overwrite INPUT; ``128 + signal`` when stopped by SIGTERM / SIGINT (run the same command
-again to resume).
+nothing to clean or an OUTPUT that would overwrite INPUT; ``128 + signal`` when stopped by
+SIGTERM / SIGINT (run the same command again to resume).
 """
 
 from __future__ import annotations

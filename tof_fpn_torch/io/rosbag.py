@@ -29,6 +29,7 @@ time when stamps repeat within a topic); unpaired frames are left out and counte
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -173,7 +174,7 @@ def _pairs(frames: dict[str, list], topics: tuple[str, str], where) -> tuple[lis
 
 
 def _read(path, depth_topic, amplitude_topic, depth_scale, allow_empty, realsense_only):
-    if not isinstance(path, (str, Path)):
+    if not isinstance(path, (str, os.PathLike)):
         raise ValueError(f"path must be a str or os.PathLike, got {type(path).__name__}")
     p = Path(path)
     if not p.exists():
@@ -195,9 +196,6 @@ def _read(path, depth_topic, amplitude_topic, depth_scale, allow_empty, realsens
             for c in reader.connections:
                 if c.msgtype == IMAGE_TYPE:
                     images.setdefault(c.topic, []).append(c)
-            bad = [c.topic for c in sum(images.values(), []) if ros2 and _format(c) != "cdr"]
-            if bad:
-                raise FormatError(f"{p}: topics {bad} are not CDR-serialized (only CDR is read)")
             d_topic = choose_topic("depth", images, depth_topic, p)
             if realsense_only and (ros2 or not _REALSENSE_DEPTH.match(d_topic)):
                 raise FormatError(
@@ -207,9 +205,13 @@ def _read(path, depth_topic, amplitude_topic, depth_scale, allow_empty, realsens
             a_topic = choose_topic("amplitude", images, amplitude_topic, p)
             if a_topic == d_topic:
                 raise FormatError(f"{p}: depth and amplitude must be two topics, got {d_topic!r}")
+            conns = images[d_topic] + images[a_topic]
+            bad = sorted({c.topic for c in conns if ros2 and _format(c) != "cdr"})
+            if bad:
+                raise FormatError(f"{p}: topics {bad} are not CDR-serialized (only CDR is read)")
             parse = parse_cdr_image if ros2 else parse_ros1_image
             frames = {d_topic: [], a_topic: []}
-            for conn, t, raw in reader.messages(connections=images[d_topic] + images[a_topic]):
+            for conn, t, raw in reader.messages(connections=conns):
                 img = parse(raw, f"{p} [{conn.topic}]")
                 arr = image_array(img, f"{p} [{conn.topic}]")
                 frames[conn.topic].append(
