@@ -188,16 +188,16 @@ def test_shared_output_names_and_missing_vendor_partners_fail_alone(tmp_path, ca
 def test_kinect_raw_pairs_keep_their_height_and_width_beside_vendor_files(tmp_path, capsys):
     src = tmp_path / "in"
     src.mkdir()
-    for stem, shape in (("k", (1, 4, 5)), ("w_depth_u16le_2x3", None)):
-        if shape:
-            frames(shape).astype("<u2").tofile(src / f"{stem}_depth.raw")
-            frames(shape, seed=1).astype("<u2").tofile(src / f"{stem}_amplitude.raw")
-    frames((1, 2, 3)).astype("<u2").tofile(src / "w_depth_u16le_2x3.bin")
+    frames((1, 4, 5)).astype("<u2").tofile(src / "k_depth.raw")  # Kinect-class: 4 x 5 by flag
+    frames((1, 4, 5), seed=1).astype("<u2").tofile(src / "k_amplitude.raw")
+    frames((1, 2, 3)).astype("<u2").tofile(src / "w_depth_u16le_2x3.bin")  # 2 x 3 by its name
     frames((1, 2, 3), seed=1).astype("<u2").tofile(src / "w_ir_u16le_2x3.bin")
     status, stdout, err = _cli(
         ["clean", src, tmp_path / "out", "--height", "4", "--width", "5", "--quiet"], capsys
     )
     assert status == 0 and "cleaned 2 file(s) (2 frames)" in stdout, err
-    assert (tmp_path / "out" / "k_amplitude.raw").read_bytes() == (
-        src / "k_amplitude.raw"
-    ).read_bytes()
+    out = tmp_path / "out"
+    for name in ("k_amplitude.raw", "w_ir_u16le_2x3.bin"):
+        assert (out / name).read_bytes() == (src / name).read_bytes()
+    assert (out / "k_depth.raw").stat().st_size == 4 * 5 * 2
+    assert (out / "w_depth_u16le_2x3.bin").stat().st_size == 2 * 3 * 2
