@@ -12,6 +12,7 @@ import json
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -450,7 +451,7 @@ def readme_commands() -> list[str]:
 
 def test_readme_lists_every_command():
     commands = readme_commands()
-    for name in ("design", "export", "reproduce", "demo", "--version"):
+    for name in ("design", "export", "reproduce", "demo", "convert", "--version"):
         assert any(c.split()[1] == name for c in commands), name
     assert any("--format onnx" in c for c in commands)
     assert not any(re.search(r"[|\[\]]", c) for c in commands)  # no a|b or [optional] notation
@@ -459,6 +460,11 @@ def test_readme_lists_every_command():
 def test_readme_commands_work_as_written(cwd, capsys, monkeypatch):
     if importlib.util.find_spec("onnx") is not None:
         monkeypatch.setattr(X, "export_onnx", _fake_export_onnx())  # the real one: test_export.py
+    # the convert example's input: the real Azure Kinect recording (fails, never skips, if absent)
+    mkv = ROOT.parent / "shared" / "data" / "real" / "azure_kinect" / "desk_recording.mkv"
+    if not mkv.is_file():
+        pytest.fail(f"real capture missing: {mkv} (../shared/data/real beside the repository)")
+    shutil.copyfile(mkv, "desk_recording.mkv")
     for command in readme_commands():
         words = shlex.split(command)
         if "onnx" in words and importlib.util.find_spec("onnxscript") is None:
@@ -476,6 +482,7 @@ def test_readme_commands_work_as_written(cwd, capsys, monkeypatch):
         os.path.join(cli_demo.DEFAULT_OUT, "demo.png"),
         os.path.join(cli_reproduce.DEFAULT_OUT, "table1.csv"),
         os.path.join(cli_reproduce.DEFAULT_OUT, "fig9.csv"),
+        os.path.join("recordings", "desk_recording.npz"),
     ]
     for path in expected:
         assert os.path.isfile(path), path

@@ -94,7 +94,7 @@ THIRD_PARTY: dict[str, set[str]] = {
     "sim": {"torch"},
     "plotting": {"matplotlib"},
     "cameras": set(),
-    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av", "PIL"},
+    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av", "PIL", "rosbags"},
     "clean": {"torch", "numpy", "tqdm", "ray", "tomli"},
     "diagnosis": {"torch", "numpy"},
 }

@@ -84,6 +84,16 @@ PROFILES: dict[str, CameraProfile] = {
         "tof_fpn_torch.io.read_azure_kinect_mkv; saturated IR 65535 left out): k = 0.161 m x IR, "
         "median depth 1.49 m, one frame; `python scripts/camera_profiles.py`",
     ),
+    "realsense": CameraProfile(
+        "realsense",
+        "Intel RealSense infrared image as recorded (Y8: 8-bit, Y16: 16-bit grey levels)",
+        "depth units of the recording (1 mm unless the bag states others)",
+        (),
+        None,
+        None,
+        "no RealSense capture with infrared measured here: use fusion_from_data. D400 depth is "
+        "active stereo and L515 depth is LiDAR, not continuous-wave ToF",
+    ),
 }
 
 

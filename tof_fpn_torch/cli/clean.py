@@ -3,9 +3,9 @@
 Stages and settings come from ``--config FILE.toml`` (format: :mod:`tof_fpn_torch.clean.config`)
 and flags (a flag wins over the file); the resolved configuration is saved as
 ``OUTPUT/clean.toml`` with the package version. Exit status: 0; 1 when some files failed (their
-count printed, their reasons in ``OUTPUT/manifest.jsonl``); 2 for a bad argument or an OUTPUT that
-would overwrite INPUT; ``128 + signal`` when stopped by SIGTERM / SIGINT (run the same command
-again to resume).
+count printed, their reasons in ``OUTPUT/manifest.jsonl``); 2 for a bad argument, an INPUT with
+nothing to clean or an OUTPUT that would overwrite INPUT; ``128 + signal`` when stopped by
+SIGTERM / SIGINT (run the same command again to resume).
 """
 
 from __future__ import annotations
@@ -49,7 +49,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Never overwrites INPUT; atomic writes; a killed run restarted skips finished files; "
         "OUTPUT/manifest.jsonl records every file.",
     )
-    p.add_argument("input", metavar="INPUT", help="a frame file or a directory (recursive)")
+    p.add_argument(
+        "input",
+        metavar="INPUT",
+        help="a frame file, a camera file (.mkv, .bag, ROS 2 bag, ADI raw) or a directory",
+    )
     p.add_argument("output", metavar="OUTPUT", help="output directory (made if missing)")
     p.add_argument("--config", metavar="FILE", help="TOML configuration (flags override it)")
     g = p.add_argument_group("stages (default: the notch stage from the design, camera fusion)")

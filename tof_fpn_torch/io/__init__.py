@@ -1,7 +1,7 @@
 """The file layer: the only part of the package that reads or writes file formats.
 
-May import: torch, NumPy, imageio, tifffile, h5py, PyAV (``av``, optional, at call time), the
-standard library, :mod:`tof_fpn_torch.runtime` (the validity rule), :mod:`tof_fpn_torch.constants`
+May import: torch, NumPy, imageio, tifffile, h5py, PyAV (``av``, optional, at call time),
+rosbags (optional, at call time), the standard library, :mod:`tof_fpn_torch.runtime` (the validity rule), :mod:`tof_fpn_torch.constants`
 and :mod:`tof_fpn_torch.cameras` (profile names). It sits beside the simulator and never imports it:
 simulator results are converted by attribute (:func:`recording_from_simulation`,
 :func:`scene_from_sim`). ``tests/test_layout.py`` checks this.
@@ -15,13 +15,16 @@ formats, their units and what each reader can and cannot do.
 - :mod:`.numpy_files` -- ``.npy`` / ``.npz``; :mod:`.images` -- 16-bit PNG, TIFF;
   :mod:`.hdf5` -- HDF5; :mod:`.raw` -- raw uint16 LE frames; :mod:`.pairs` -- by suffix.
 - :mod:`.captures` -- ADI ADTF3175 (depth + IR, interleaved), Kinect v2 P0 tables;
-  :mod:`.matroska` -- Azure Kinect ``.mkv`` (PyAV).
+  :mod:`.matroska` -- Azure Kinect ``.mkv`` (PyAV); :mod:`.rosbag` -- ROS 1 / ROS 2 bags,
+  RealSense recordings (rosbags); :mod:`.camera_files` -- camera files by name (containers,
+  ADI vendor names) for the folder tools.
 - :mod:`.recording` -- the recording format (:class:`Recording`); :mod:`.scene` -- the scene
   format (:class:`SceneData`).
 - :mod:`.dataset` -- :class:`FrameDataset`, a folder of frames for a ``DataLoader``.
 """
 
 from ._common import METRES_PER_MM, FormatError
+from .camera_files import read_any_recording, read_camera_file
 from .captures import (
     read_adi_depth_ir,
     read_adi_interleaved,
@@ -44,6 +47,7 @@ from .recording import (
     recording_from_simulation,
     write_recording,
 )
+from .rosbag import read_realsense_bag, read_ros_bag
 from .scene import SceneData, read_scene, scene_from_sim, write_scene
 
 __all__ = [
@@ -57,7 +61,9 @@ __all__ = [
     "find_frames",
     "read_adi_depth_ir",
     "read_adi_interleaved",
+    "read_any_recording",
     "read_azure_kinect_mkv",
+    "read_camera_file",
     "read_hdf5",
     "read_kinect_v2_p0",
     "read_npy",
@@ -65,7 +71,9 @@ __all__ = [
     "read_pair",
     "read_png",
     "read_raw",
+    "read_realsense_bag",
     "read_recording",
+    "read_ros_bag",
     "read_scene",
     "read_tiff",
     "recording_from_simulation",

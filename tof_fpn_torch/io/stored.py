@@ -23,11 +23,13 @@ holding a ``depth`` and an ``amplitude`` dataset (the root included) is one, key
 :func:`frame_set_tensors` turns a set into the package's tensors (depth metres, NaN invalid;
 amplitude camera units) and :func:`encode_depth` turns cleaned depth (metres) back into the stored
 dtype, leaving the stored value of every invalid input pixel as it was. Decoding errors raise
-:class:`FormatError` naming the file.
+:class:`FormatError` naming the file. Camera files (an Azure Kinect ``.mkv``, ROS bags, ADI
+vendor-named raw files) are read and written through :mod:`.camera_files`.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 import zipfile
 from dataclasses import dataclass
@@ -68,6 +70,10 @@ class FrameSet:
         amplitude: (T, H, W) stored amplitude, the file's dtype (camera units).
         depth_scale: metres per stored depth unit.
         shape: the stored shape of the depth, (H, W) or (T, H, W), written back as it was.
+        camera: the camera profile (:mod:`tof_fpn_torch.cameras`) the file comes from, where
+            its format or name tells (``azure_kinect``, ``realsense``, ``adtf3175``, a
+            recording's ``meta["camera"]``), else None.
+        meta, timestamps_s: a recording container's meta and (T,) timestamps, else None.
     """
 
     key: str
@@ -75,12 +81,25 @@ class FrameSet:
     amplitude: np.ndarray
     depth_scale: float
     shape: tuple[int, ...]
+    camera: str | None = None
+    meta: dict | None = None
+    timestamps_s: np.ndarray | None = None
 
 
 def _scale(arr: np.ndarray, depth_scale) -> float:
     if depth_scale is not None:
         return check_scale(depth_scale)
     return 1e-3 if arr.dtype.kind in "ui" else 1.0  # io._common: mm for integer, m for floating
+
+
+def _recording_camera(arrays: dict) -> str | None:
+    """``meta["camera"]`` of a recording ``.npz`` (:mod:`.recording`), else None."""
+    try:
+        meta = json.loads(str(arrays["meta"].item())) if "content" in arrays else None
+    except (KeyError, ValueError):
+        return None
+    camera = meta.get("camera") if isinstance(meta, dict) else None
+    return camera if isinstance(camera, str) else None
 
 
 def _png(path: Path) -> np.ndarray:
@@ -175,10 +194,18 @@ def read_frame_sets(
     Returns:
         the file's :class:`FrameSet` s (several for an HDF5 file with several groups).
 
+    Camera files (an Azure Kinect ``.mkv``, ROS bags, ADI vendor-named raw files) are read by
+    :func:`~.camera_files.camera_sets` (docs/io.md).
+
     Raises:
         FormatError: a file that cannot be decoded, an array of another dtype or rank.
         ValueError: depth and amplitude of different shapes.
     """
+    from .camera_files import camera_sets  # imported here: camera_files imports this module
+
+    camera = camera_sets(depth_path, amplitude_path, depth_scale)
+    if camera is not None:
+        return camera
     p = existing_file(depth_path, "depth")
     s = p.suffix.lower()
     if s in _HDF5:
@@ -190,7 +217,8 @@ def read_frame_sets(
             raise FormatError(f"{p}: no array(s) {missing}; it holds {sorted(arrays)}")
         d = stored_frames(arrays["depth"], f"{p} [depth]")
         a = stored_frames(arrays["amplitude"], f"{p} [amplitude]")
-        sets = [FrameSet("", d, a, _scale(d, depth_scale), tuple(arrays["depth"].shape))]
+        shape = tuple(arrays["depth"].shape)
+        sets = [FrameSet("", d, a, _scale(d, depth_scale), shape, _recording_camera(arrays))]
     else:
         if amplitude_path is None:
             raise ValueError(f"{p} holds depth only; pass amplitude_path too")
@@ -304,6 +332,10 @@ def write_like(src, dst, depths: dict[str, np.ndarray], sets: list[FrameSet]) ->
                 f"{arr.dtype} {arr.shape}"
             )
         arrays[key] = np.ascontiguousarray(arr.reshape(fs.shape))
+    from .camera_files import write_camera_like  # imported here: it imports this module
+
+    if write_camera_like(src, dst, arrays, by_key):
+        return dst
     s = src.suffix.lower()
     if s in _HDF5:
         shutil.copyfile(src, dst)
