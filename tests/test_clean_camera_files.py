@@ -82,7 +82,7 @@ def test_clean_adi_vendor_files_in_their_own_format(tmp_path, capsys):
     status, stdout, err = _cli(["clean", src, out, "--destripe", "columns", "--quiet"], capsys)
     assert status == 0 and err == [] and "cleaned 2 file(s) (2 frames)" in stdout, (stdout, err)
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [*ADI, OFFICE, "clean.toml", "manifest.jsonl"]
+        [*ADI, OFFICE, "clean.toml", "manifest.jsonl", "report.png"]
     )
     assert (out / ADI[1]).read_bytes() == (src / ADI[1]).read_bytes()  # IR: byte for byte
     d_in, d_out = (np.fromfile(p / ADI[0], "<u2") for p in (src, out))

@@ -38,7 +38,7 @@ def test_clean_offers_every_registered_name():
 @pytest.mark.parametrize("name", denoise.names())
 def test_each_denoiser_runs_in_the_pipeline_and_lowers_the_error(name):
     depth, amp, truth, holes = _noisy_frame()
-    pipe = build_pipeline(CleanConfig(notch="off", denoise=name))
+    pipe = build_pipeline(CleanConfig(stage="paper", notch="off", denoise=name))
     assert isinstance(pipe.denoiser, denoise.module_class(name)) and pipe.fpn is None
     out = pipe(depth, amp)
     assert out.shape == depth.shape and out.dtype == depth.dtype
@@ -52,13 +52,17 @@ def test_each_denoiser_runs_in_the_pipeline_and_lowers_the_error(name):
 
 def test_aliases_and_options_reach_the_denoiser():
     pipe = build_pipeline(
-        CleanConfig(notch="off", denoise="Sliding_DCT", denoise_options={"block_size": 8})
+        CleanConfig(
+            stage="paper", notch="off", denoise="Sliding_DCT", denoise_options={"block_size": 8}
+        )
     )
     assert isinstance(pipe.denoiser, denoise.SlidingDCT)
     with pytest.raises(ValueError, match="unknown option.*'bogus'"):
-        build_pipeline(CleanConfig(notch="off", denoise="bm3d", denoise_options={"bogus": 1}))
+        build_pipeline(
+            CleanConfig(stage="paper", notch="off", denoise="bm3d", denoise_options={"bogus": 1})
+        )
     with pytest.raises(ValueError, match="denoise must be 'none' or one of"):
-        build_pipeline(CleanConfig(notch="off", denoise="wiener"))
+        build_pipeline(CleanConfig(stage="paper", notch="off", denoise="wiener"))
 
 
 @pytest.mark.parametrize("name", ["bm3d", "joint-bilateral"])

@@ -56,7 +56,7 @@ ALLOWED: dict[str, set[str]] = {
     # camera profile names
     "io": {"runtime", "cameras"},
     # tof-fpn clean: the pipeline over files (docs/clean.md)
-    "clean": {"runtime", "build", "denoise", "io", "cameras", "analysis"},
+    "clean": {"runtime", "build", "denoise", "io", "cameras", "analysis", "plotting"},
     # sim vs. recording (issue 10): reads recordings / scenes, runs the simulator, fits it
     "diagnosis": {
         "runtime",

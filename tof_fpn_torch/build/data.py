@@ -8,9 +8,10 @@ from __future__ import annotations
 import torch
 
 from .. import constants as K
-from ..analysis.stripe_energy import column_stripe_energy, structure_mask
+from ..analysis.stripe_energy import column_stripe_energy, quiet_mask
 from ..analysis.stripe_fusion import MIN_BIN_PIXELS, fit_fusion, stripe_power_by_amplitude
 from ..analysis.stripes import StripeEstimate, estimate_stripes
+from ..cameras import profile
 from ..denoise import estimate_noise_k, estimate_sigma
 from ..design import max_rho
 from ..runtime import AmplitudeFusion, Destripe, FPNFilter, FPNSuppression, destripe, valid_mask
@@ -136,6 +137,7 @@ def suppression_from_data(
     *,
     false_alarm: float = K.DETECTION_FALSE_ALARM,
     estimate_kwargs: dict | None = None,
+    camera_hint: str | None = None,
     **kwargs,
 ) -> FPNSuppression:
     """A stage with the pieces the data call for (never one the data do not).
@@ -175,7 +177,7 @@ def suppression_from_data(
     measured = None
     if amplitudes is not None and kwargs.get("adaptive", True):
         if "low" not in kwargs and "camera" not in kwargs:
-            measured = _measured_fusion(frames, amplitudes, order, rho, merged, kwargs)
+            measured = _measured_fusion(frames, amplitudes, order, rho, merged, kwargs, camera_hint)
             kwargs.update(low=measured.low, high=measured.high, floor=measured.floor)
     kwargs.setdefault("destripe", None)
     module = suppression_from_design(order, rho, notches=tuple(merged), **kwargs)
@@ -190,9 +192,12 @@ def suppression_from_data(
     return module
 
 
-def _measured_fusion(frames, amplitudes, order, rho, notches, kwargs) -> AmplitudeFusion:
-    """:func:`fusion_from_data` with the stage's own notch filter (the noise rule,
-    :func:`fusion_from_noise`, where the frames are too small to measure the stripes on)."""
+def _measured_fusion(
+    frames, amplitudes, order, rho, notches, kwargs, camera_hint
+) -> AmplitudeFusion:
+    """:func:`fusion_from_data` with the stage's own notch filter; where the frames are too small
+    to measure the stripes on, the thresholds of the ``camera_hint`` profile, else the noise rule
+    (:func:`fusion_from_noise`)."""
     design_keys = ("dim", "band_weights", "compensate_delay", "unit_dc", "max_ripple_db", "border")
     filt = filter_from_design(
         order, rho, notches=notches, **{k: kwargs[k] for k in design_keys if k in kwargs}
@@ -200,7 +205,11 @@ def _measured_fusion(frames, amplitudes, order, rho, notches, kwargs) -> Amplitu
     try:
         return fusion_from_data(frames, amplitudes, filt)
     except ValueError:
-        return fusion_from_noise(frames, amplitudes, kwargs.get("floor", K.FUSION_FLOOR))
+        floor = kwargs.get("floor", K.FUSION_FLOOR)
+        prof = None if camera_hint is None else profile(camera_hint)
+        if prof is not None and prof.fusion_low is not None and prof.fusion_high is not None:
+            return AmplitudeFusion(prof.fusion_low, prof.fusion_high, floor)
+        return fusion_from_noise(frames, amplitudes, floor)
 
 
 def broadband_from_data(
@@ -217,8 +226,7 @@ def broadband_from_data(
     frames' per-pixel noise (wavelet MAD, :func:`~tof_fpn_torch.denoise.estimate_sigma`; the floor
     of the periodic detection and the stripe gate) and (2) halve the column-stripe energy
     (:func:`~tof_fpn_torch.analysis.column_stripe_energy`, the covariance of the top and bottom
-    halves' column profiles) measured away from scene structure (``structure_mask`` at 6 noise
-    sigmas): what it removes must be an offset of the whole column where the scene is quiet, not a
+    halves' column profiles) measured away from scene structure (:func:`quiet_mask`): what it removes must be an offset of the whole column where the scene is quiet, not a
     thin object or texture the same in both halves (the destriper alone cannot tell those apart);
     and (3) the two halves' profiles there must correlate significantly: ``r sqrt(n) >=``
     :data:`AUTO_DESTRIPE_MIN_Z` over ``n`` columns (no common pattern gives ``r ~ N(0, 1 / n)``;
@@ -243,7 +251,7 @@ def broadband_from_data(
         after = torch.where(valid, out, torch.nan)
         if d == -2:  # row offsets: the same measurement on the transposed frames
             before, after = before.transpose(-1, -2), after.transpose(-1, -2)
-        quiet = structure_mask(before, 6.0 * noise)
+        quiet = quiet_mask(before)
         energy = column_stripe_energy(before, quiet)
         e0 = float(energy.covariance.mean())
         e1 = float(column_stripe_energy(after, quiet).covariance.mean())

@@ -15,7 +15,9 @@ builders of :mod:`tof_fpn_torch.build`; the measured module is then fixed for th
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 from torch import nn
@@ -24,6 +26,7 @@ from .. import constants as K
 from .. import denoise as _denoise
 from ..build import (
     broadband_from_data,
+    filter_from_design,
     fusion_from_data,
     suppression_from_data,
     suppression_from_design,
@@ -31,7 +34,15 @@ from ..build import (
 from ..runtime import Destripe, FPNSuppression
 from .config import CleanConfig
 
-__all__ = ["DENOISERS", "CleanPipeline", "build_pipeline", "describe", "register_denoiser"]
+__all__ = [
+    "DENOISERS",
+    "Calibration",
+    "CleanPipeline",
+    "build_pipeline",
+    "describe",
+    "register_denoiser",
+    "stage_line",
+]
 
 #: denoiser name -> factory(**options) -> module ``(depth, amplitude) -> depth``
 DENOISERS: dict[str, Callable[..., nn.Module]] = {
@@ -92,6 +103,13 @@ class CleanPipeline(nn.Module):
         super().__init__()
         self.fpn = fpn
         self.denoiser = denoiser
+        self.calibration: dict | None = None  # what a data-driven stage was measured on
+
+    def gates(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor | None:
+        """(B,) the notch stage's gate per frame (None without a notch filter), for the record."""
+        if self.fpn is None or self.fpn.filter is None:
+            return None
+        return self.fpn.gate_values(depth, amplitude)
 
     @torch.no_grad()
     def forward(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor:
@@ -103,40 +121,58 @@ class CleanPipeline(nn.Module):
         return y
 
 
-def _fusion_kwargs(config: CleanConfig, calib) -> dict:
+@dataclass
+class Calibration:
+    """The frames data-driven stages are measured on: depth (N, 1, H, W) metres, amplitude
+    (N, 1, H, W) camera units, and the camera profile the files name (None: not said)."""
+
+    depth: torch.Tensor
+    amplitude: torch.Tensor
+    camera: str | None = None
+
+
+def _camera(config: CleanConfig, calib) -> str:
+    """The profile of ``fusion = camera``: the configured one, else the files', else CamCube."""
+    if config.camera is not None:
+        return config.camera
+    return calib().camera or "camcube"
+
+
+def _fusion_kwargs(config: CleanConfig, calib, filt) -> dict:
     if config.fusion == "off":
         return {"adaptive": False}
     if config.fusion == "camera":
-        return {"camera": config.camera}
+        return {"camera": _camera(config, calib)}
     if config.fusion == "manual":
         return {"low": config.low, "high": config.high}
-    if config.notch == "data":  # suppression_from_data measures the thresholds itself
-        return {}
-    fusion = fusion_from_data(*calib())
-    return {"low": fusion.low, "high": fusion.high}
+    if config.notch == "data":  # suppression_from_data measures the fusion itself
+        return {"camera_hint": calib().camera}
+    c = calib()
+    fusion = fusion_from_data(c.depth, c.amplitude, filt())
+    return {"low": fusion.low, "high": fusion.high, "floor": fusion.floor}
 
 
 def build_pipeline(
-    config: CleanConfig,
-    calibration: Callable[[], tuple[torch.Tensor, torch.Tensor]] | None = None,
+    config: CleanConfig, calibration: Callable[[], Calibration] | None = None
 ) -> CleanPipeline:
     """The :class:`CleanPipeline` of ``config``.
 
     Args:
         config: the stages and settings.
-        calibration: called (once, only when a stage is measured on data) for
-            ``(depth, amplitude)`` calibration frames, (N, 1, H, W) metres and camera units.
+        calibration: called (once, only when a stage is measured on data or the camera is asked
+            for) for the :class:`Calibration` frames.
 
     Raises:
         ValueError: a data-driven stage without ``calibration``, or a setting the builders refuse.
     """
     cache: list = []
 
-    def calib():
+    def calib() -> Calibration:
         if calibration is None:
             raise ValueError(
                 "this configuration measures a stage on data (destripe = 'auto', notch = 'data' "
-                "or fusion = 'data') but no calibration frames were given"
+                "or fusion = 'data') or uses the files' camera, but no calibration frames were "
+                "given"
             )
         if not cache:
             cache.append(calibration())
@@ -146,30 +182,37 @@ def build_pipeline(
     if config.destripe in _DESTRIPE_DIMS:
         destripe = Destripe(dim=_DESTRIPE_DIMS[config.destripe])
     fpn: FPNSuppression | None = None
+    rho = K.DEFAULT_RHO if config.rho is None else config.rho
     if config.notch == "design":
-        rho = K.DEFAULT_RHO if config.rho is None else config.rho
+        kwargs = _fusion_kwargs(config, calib, lambda: filter_from_design(config.order, rho))
         fpn = suppression_from_design(
-            config.order, rho, gate=config.gate, destripe=destripe, **_fusion_kwargs(config, calib)
+            config.order, rho, gate=config.gate, destripe=destripe, **kwargs
         )
     elif config.notch == "data":
         kwargs = dict(order=config.order, rho=config.rho, gate=config.gate)
-        kwargs.update(_fusion_kwargs(config, calib))
+        kwargs.update(_fusion_kwargs(config, calib, None))
         if config.destripe != "auto":
             kwargs["destripe"] = destripe
-        fpn = suppression_from_data(*calib(), **kwargs)
+        c = calib()
+        fpn = suppression_from_data(c.depth, c.amplitude, **kwargs)
     elif destripe is not None:
         fpn = FPNSuppression(None, None, destripe=destripe)
     if config.destripe == "auto" and config.notch != "data":
-        depth, amplitude = calib()
+        c = calib()
         with torch.no_grad():
-            notched = depth if fpn is None else fpn(depth, amplitude)
-        found = broadband_from_data(notched, amplitude)
+            notched = c.depth if fpn is None else fpn(c.depth, c.amplitude)
+        found = broadband_from_data(notched, c.amplitude)
         if fpn is None:
             fpn = None if found is None else FPNSuppression(None, None, destripe=found)
         else:
             fpn.destripe = found
+    if fpn is not None and fpn.filter is None and fpn.destripe is None:
+        fpn = None  # measured: nothing to do
     denoiser = make_denoiser(config.denoise, config.denoise_options)
     pipeline = CleanPipeline(fpn, denoiser)
+    if cache:
+        c = cache[0]
+        pipeline.calibration = {"frames": int(c.depth.shape[0]), "camera": c.camera}
     pipeline.eval()
     return pipeline
 
@@ -187,10 +230,46 @@ def describe(pipeline: CleanPipeline) -> dict:
                 "dims": list(fpn.filter.dims),
             }
         if fpn.fusion is not None:
-            out["fusion"] = {"low": float(fpn.fusion.low), "high": float(fpn.fusion.high)}
+            out["fusion"] = {
+                "low": float(fpn.fusion.low),
+                "high": float(fpn.fusion.high),
+                "floor": float(fpn.fusion.floor),
+            }
         out["gate"] = bool(fpn.gate)
+        out["stripe_scale"] = float(fpn.stripe_scale)
         if fpn.destripe is not None:
             out["destripe"] = fpn.destripe.extra_repr()
     if pipeline.denoiser is not None:
         out["denoise"] = f"{type(pipeline.denoiser).__name__}({pipeline.denoiser.extra_repr()})"
+    out["calibration"] = pipeline.calibration
     return out
+
+
+def stage_line(info: dict, stage: str) -> str:
+    """One line saying what the pipeline of :func:`describe` does (what the command prints)."""
+    parts = []
+    notch = info.get("notch")
+    if notch is not None:
+        where = {-1: "columns", -2: "rows"}
+        freqs = ", ".join(f"{w / math.pi:.3g} pi" for w in notch["notches"])
+        dims = " and ".join(where[d] for d in notch["dims"])
+        parts.append(f"notch at {freqs} ({dims}, order {notch['order']})")
+        fusion = info.get("fusion")
+        if fusion is not None:
+            parts.append(
+                f"fusion {fusion['low']:.4g} / {fusion['high']:.4g} / floor {fusion['floor']:.2f}"
+            )
+        parts.append("gated" if info.get("gate") else "ungated")
+    if info.get("destripe") is not None:
+        parts.append(f"destripe {info['destripe']}")
+    if info.get("denoise") is not None:
+        parts.append(f"denoise {info['denoise']}")
+    calib = info.get("calibration")
+    source = ""
+    if calib is not None:
+        camera = f", camera {calib['camera']}" if calib.get("camera") else ""
+        source = f", measured on {calib['frames']} calibration frame(s){camera}"
+    if not parts:
+        nothing = "no periodic stripes or broadband offsets found" if calib else "every stage off"
+        return f"stage {stage}{source}: nothing to do ({nothing}); the outputs equal the inputs"
+    return f"stage {stage}{source}: " + "; ".join(parts)

@@ -27,9 +27,12 @@ import torch
 from tqdm import tqdm
 
 from .. import __version__
+from ..runtime import valid_mask
 from .config import CleanConfig, config_to_toml, load_config
+from .figure import report_figure
 from .manifest import Manifest, finished, now, read_manifest
-from .pipeline import build_pipeline, describe
+from .measure import summarise
+from .pipeline import Calibration, build_pipeline, describe, stage_line
 from .plan import (
     MANIFEST,
     SAVED_CONFIG,
@@ -44,6 +47,8 @@ from .work import load_group
 __all__ = ["ENGINES", "CleanReport", "clean", "resolve_device"]
 
 ENGINES = ("local", "ray")
+#: failed files listed by :meth:`CleanReport.summary` (all are in the manifest)
+SHOWN_FAILURES = 10
 
 
 @dataclass
@@ -61,6 +66,9 @@ class CleanReport:
     steps: dict = field(default_factory=lambda: {"read": 0.0, "compute": 0.0, "write": 0.0})
     failures: list = field(default_factory=list)
     created: bool = False
+    stage: str = ""
+    records: list = field(default_factory=list)
+    figure: str | None = None
 
     @property
     def status(self) -> int:
@@ -69,12 +77,23 @@ class CleanReport:
         return 1 if self.failed else 0
 
     def summary(self) -> str:
+        """What the command prints: the stage, the counts, what the cleaning did (module
+        :mod:`.measure`), one line per failed file (the first :data:`SHOWN_FAILURES`)."""
         rate = self.frames / self.seconds if self.seconds > 0 else 0.0
-        s = (
+        lines = [self.stage] if self.stage else []
+        lines.append(
             f"cleaned {self.done} file(s) ({self.frames} frames) in {self.seconds:.1f} s, "
-            f"{rate:.1f} frames/s; {self.failed} failed; {self.already_done} already done"
+            f"{rate:.1f} frames/s; {self.failed} failed; {self.already_done} already done; "
+            f"output {self.output}, manifest {os.path.join(self.output, MANIFEST)}"
         )
-        return s + f"; output {self.output}, manifest {os.path.join(self.output, MANIFEST)}"
+        lines += summarise(self.records)
+        if self.figure:
+            lines.append(f"figure: {self.figure}")
+        for name, why in self.failures[:SHOWN_FAILURES]:
+            lines.append(f"failed: {name}: {why}")
+        if len(self.failures) > SHOWN_FAILURES:
+            lines.append(f"... and {len(self.failures) - SHOWN_FAILURES} more failed (manifest)")
+        return "\n".join(lines)
 
 
 def resolve_device(device: str | torch.device = "auto") -> torch.device:
@@ -92,24 +111,27 @@ def resolve_device(device: str | torch.device = "auto") -> torch.device:
     return dev
 
 
-def _calibration(jobs, config: CleanConfig):
-    """The first ``calibration_frames`` readable frames (of the first readable frame's shape)."""
-    depth, amplitude = [], []
+def _calibration(jobs, config: CleanConfig) -> Calibration:
+    """The first ``calibration_frames`` readable frames (of the first readable frame's shape),
+    and the camera the first file that names one comes from."""
+    depth, amplitude, camera = [], [], None
     for job in jobs:
         if job.error is not None:
             continue
         (item,) = load_group([job], set(), config)
-        for d, a in item.tensors or []:
+        for fs, (d, a) in zip(item.sets or [], item.tensors or [], strict=True):
+            camera = camera or fs.camera
             if depth and d.shape[-2:] != depth[0].shape[-2:]:
                 continue
-            depth.append(d)
-            amplitude.append(a)
+            has = valid_mask(d, a).flatten(1).any(1)  # frames with no valid pixel say nothing
+            depth.append(d[has])
+            amplitude.append(a[has])
         if sum(x.shape[0] for x in depth) >= config.calibration_frames:
             break
     if not depth:
         raise ValueError("no readable frame in INPUT to measure the data-driven stages on")
     n = config.calibration_frames
-    return torch.cat(depth)[:n], torch.cat(amplitude)[:n]
+    return Calibration(torch.cat(depth)[:n], torch.cat(amplitude)[:n], camera)
 
 
 @contextlib.contextmanager
@@ -165,6 +187,7 @@ def clean(
     concurrency: int | None = None,
     ray_address: str | None = None,
     compute_in_workers: bool | None = None,
+    figure: bool = True,
 ) -> CleanReport:
     """Clean every frame file of ``input_path`` (a file or a directory tree) into ``output``.
 
@@ -181,6 +204,7 @@ def clean(
         ray_address: the Ray cluster (``ray.init(address=...)``); None: ``RAY_ADDRESS`` or a new
             local instance.
         compute_in_workers: local engine: compute in the workers (default: on the CPU only).
+        figure: draw ``OUTPUT/report.png`` (:mod:`.figure`) when files were cleaned.
 
     Returns:
         a :class:`CleanReport` (``status`` is the exit status of ``tof-fpn clean``).
@@ -199,6 +223,7 @@ def clean(
     jobs = plan_jobs(input_path, output)
     pipeline = build_pipeline(config, lambda: _calibration(jobs, config)).to(dev)
     report = CleanReport(output, jobs=len(jobs), created=not os.path.isdir(output))
+    report.stage = stage_line(describe(pipeline), config.stage)
     os.makedirs(output, exist_ok=True)
     _saved_config(output, config)
     manifest_path = os.path.join(output, MANIFEST)
@@ -264,6 +289,7 @@ def clean(
                     if rec["status"] == "done":
                         report.done += 1
                         report.frames += rec["frames"]
+                        report.records.append({"status": "done", "report": rec.get("report")})
                     else:
                         report.failed += 1
                         report.failures.append((rec["file"], rec["error"]))
@@ -278,6 +304,11 @@ def clean(
                             os.remove(os.path.join(folder, f))
         report.seconds = time.perf_counter() - t0
         report.interrupted = caught[0] if caught else None
+        if figure and report.done and report.interrupted is None:
+            try:
+                report.figure = report_figure(output, jobs, config)
+            except Exception as exc:  # noqa: BLE001 -- the files are cleaned; say why not drawn
+                report.figure = f"not drawn: {type(exc).__name__}: {exc}"
         man.write(
             {
                 "event": "end",

@@ -56,7 +56,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("output", metavar="OUTPUT", help="output directory (made if missing)")
     p.add_argument("--config", metavar="FILE", help="TOML configuration (flags override it)")
-    g = p.add_argument_group("stages (default: the notch stage from the design, camera fusion)")
+    g = p.add_argument_group(
+        "stages (default: --stage auto, every piece measured on the first frames of INPUT)"
+    )
+    g.add_argument(
+        "--stage",
+        choices=CHOICES["stage"],
+        help="auto: notch, fusion and destriping measured on the data (default); paper: the "
+        "paper's CamCube notch stage with its 70 / 350 fusion",
+    )
     g.add_argument("--destripe", choices=CHOICES["destripe"], help="broadband offsets")
     g.add_argument("--notch", choices=CHOICES["notch"], help="periodic stripes")
     g.add_argument("--fusion", choices=CHOICES["fusion"], help="eq. (11) amplitude fusion")
@@ -81,6 +89,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--height", type=int_arg(1), help="rows of raw .bin / .raw frames")
     f.add_argument("--width", type=int_arg(1), help="columns of raw .bin / .raw frames")
     f.add_argument(
+        "--rounding",
+        choices=CHOICES["rounding"],
+        help="integer outputs: dither (default: sub-unit corrections survive in the mean) or "
+        "nearest",
+    )
+    f.add_argument(
+        "--output-scale",
+        type=float_arg(0.0, open_lo=True),
+        metavar="M",
+        help="integer outputs: metres per stored unit, e.g. 0.0001 (default: the input's)",
+    )
+    f.add_argument("--no-figure", action="store_true", help="do not draw OUTPUT/report.png")
+    f.add_argument(
         "--workers", type=int_arg(0, 256), default=0, help="DataLoader workers (default 0)"
     )
     f.add_argument("--device", default="auto", help="auto (GPU if any), cpu or cuda[:N]")
@@ -100,6 +121,7 @@ def config_from_args(args: argparse.Namespace) -> CleanConfig:
         options = {}
     options.update(dict(args.denoise_opt or []))
     return base.replace(
+        stage=args.stage,
         destripe=args.destripe,
         notch=args.notch,
         fusion=args.fusion,
@@ -116,6 +138,8 @@ def config_from_args(args: argparse.Namespace) -> CleanConfig:
         depth_scale=args.depth_scale,
         height=args.height,
         width=args.width,
+        rounding=args.rounding,
+        output_scale=args.output_scale,
     )
 
 
@@ -135,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
         progress=False if args.quiet else None,
         concurrency=args.concurrency,
         ray_address=args.ray_address,
+        figure=not args.no_figure,
     )
     if report.created:
         print(f"created directory {args.output}")
@@ -150,8 +175,8 @@ def run(args: argparse.Namespace) -> int:
         )
     elif report.failed:
         print(
-            f"{prefix} {report.failed} of {report.jobs} file(s) failed; the reasons are in "
-            f"{os.path.join(args.output, 'manifest.jsonl')}",
+            f"{prefix} {report.failed} of {report.jobs} file(s) failed (reasons above and in "
+            f"{os.path.join(args.output, 'manifest.jsonl')})",
             file=sys.stderr,
         )
     return report.status

@@ -185,18 +185,56 @@ class FPNSuppression(Float32Stage):
             out = fusion(filtered, depth, amplitude)
         if not self.gate:
             return out
+        g = self._gate(depth, amplitude, mask, filtered, out)
+        if g is None:  # no stripes anywhere: nothing to weigh
+            return depth
+        blended = depth + g.to(depth.dtype) * (out - depth)
+        if mask is None:
+            return blended
+        return torch.where(mask, blended, depth)
+
+    def _gate(
+        self,
+        depth: torch.Tensor,
+        amplitude: torch.Tensor | None,
+        mask: torch.Tensor | None,
+        filtered: torch.Tensor,
+        out: torch.Tensor,
+    ) -> torch.Tensor | None:
+        """(B, 1, 1, 1) gate: the line test times the risk check (None in eager mode when the
+        line test is closed for every image)."""
+        notch = self.filter
+        assert notch is not None
+        fusion = self.fusion
         g, stripes = line_gate(
             depth, filtered, mask, notch.dims, notch.notches, self.noise_gain, self.min_stripe
         )
-        if not _tracing() and not bool(g.any()):  # no stripes anywhere: nothing to weigh
-            return depth
+        if not _tracing() and not bool(g.any()):
+            return None
         weight = torch.ones_like(depth)
         if fusion is not None and amplitude is not None:  # the fusion is affine in its inputs:
             weight = fusion(weight + 1.0, weight, amplitude) - 1.0  # its weight w_p, any kind
         noise = noise_power(depth, amplitude, mask)
         stripes = stripes * self.stripe_scale
-        g = g * risk_shrinkage(out - depth, weight, noise, stripes, self.centre, mask)
-        blended = depth + g.to(depth.dtype) * (out - depth)
-        if mask is None:
-            return blended
-        return torch.where(mask, blended, depth)
+        return g * risk_shrinkage(out - depth, weight, noise, stripes, self.centre, mask)
+
+    @torch.jit.unused
+    def gate_values(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None):
+        """(B,) the notch part's per-image gate in [0, 1] (1 for every image without the gate,
+        0 without a notch filter): how much of the notch each image gets. For reports; it runs
+        the filter again."""
+        B = depth.shape[0]
+        if self.filter is None:
+            return torch.zeros(B)
+        if not self.gate:
+            return torch.ones(B)
+        with torch.no_grad():
+            x = depth.float()
+            amp = None if amplitude is None else amplitude.float()
+            mask = valid_mask(x, amp)
+            filtered = self.filter(x, mask)
+            out = filtered
+            if self.fusion is not None and amp is not None:
+                out = self.fusion(filtered, x, amp)
+            g = self._gate(x, amp, mask, filtered, out)
+        return torch.zeros(B) if g is None else g.flatten().cpu()
