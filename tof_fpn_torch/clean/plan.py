@@ -32,6 +32,7 @@ from ..io.camera_files import (
 from ..io.pairs import PAIR_SUFFIXES, SINGLE_SUFFIXES
 
 __all__ = [
+    "LOCK",
     "MANIFEST",
     "SAVED_CONFIG",
     "TMP_MARK",
@@ -46,6 +47,8 @@ __all__ = [
 #: the manifest and the saved configuration, inside OUTPUT
 MANIFEST = "manifest.jsonl"
 SAVED_CONFIG = "clean.toml"
+#: held (``flock``) by the run writing OUTPUT, so that two runs never write one OUTPUT at once
+LOCK = ".tof-fpn-clean.lock"
 #: every temporary file is ``.<name>.tofclean-<token>.tmp`` in its destination directory
 TMP_MARK = ".tofclean-"
 _ENDINGS = {"_depth": "depth", "_amplitude": "amplitude"}
@@ -115,7 +118,7 @@ def check_paths(input_path: str, output: str) -> None:
         )
     if os.path.lexists(output) and not os.path.isdir(output):
         raise ValueError(f"OUTPUT {output!r} is a file; it must be a directory (made if missing)")
-    if os.path.isdir(output) and any(os.scandir(output)):
+    if os.path.isdir(output) and any(e.name != LOCK for e in os.scandir(output)):
         ours = (os.path.isfile(os.path.join(output, n)) for n in (MANIFEST, SAVED_CONFIG))
         if not any(ours):  # clean.toml alone: a run stopped before its manifest was opened
             raise ValueError(

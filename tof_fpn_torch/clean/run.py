@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import os
 import secrets
 import signal
@@ -34,6 +35,7 @@ from .manifest import Manifest, finished, now, read_manifest
 from .measure import summarise
 from .pipeline import Calibration, build_pipeline, describe, stage_line
 from .plan import (
+    LOCK,
     MANIFEST,
     SAVED_CONFIG,
     TMP_MARK,
@@ -135,6 +137,38 @@ def _calibration(jobs, config: CleanConfig) -> Calibration:
 
 
 @contextlib.contextmanager
+def output_lock(output: str):
+    """Hold ``OUTPUT/.tof-fpn-clean.lock`` (an exclusive ``flock``, the file holding the pid) for
+    the run; ``ValueError`` when another run holds it. The file is removed when the run ends; a
+    killed run leaves it, unlocked (the kernel releases the lock with the process), and the next
+    run takes it over. (Where ``fcntl`` is missing, e.g. on Windows, nothing is locked.)"""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    fd = os.open(os.path.join(output, LOCK), os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise ValueError(
+                f"OUTPUT {output!r} is being written by another tof-fpn clean (pid {owner}); "
+                "wait for it to finish, or choose another OUTPUT"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        try:
+            yield
+        finally:  # still held: a run starting now opens a new file, after this one is done
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(os.path.join(output, LOCK))
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
 def _signals():
     """Catch SIGTERM / SIGINT into a flag (only in the main thread, where Python can); a second
     signal ends the process at once (atomic writes keep the output consistent)."""
@@ -214,8 +248,18 @@ def clean(
             written). Bad input files do not raise: they are failed records in the manifest.
     """
     config = CleanConfig() if config is None else config
+    if not isinstance(config, CleanConfig):
+        raise TypeError(
+            f"config must be a CleanConfig or None, got {type(config).__name__} {config!r}: "
+            "build one with CleanConfig(destripe='columns', ...) or read a TOML file with "
+            "load_config(path)"
+        )
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+    if engine == "ray" and importlib.util.find_spec("ray") is None:
+        raise ValueError(
+            "--engine ray needs Ray Data: pip install 'tof_fpn_torch[ray]' (ray[data] >= 2.9)"
+        )
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise ValueError(f"workers must be an int >= 0, got {workers!r}")
     dev = resolve_device(device)
@@ -225,99 +269,102 @@ def clean(
     report = CleanReport(output, jobs=len(jobs), created=not os.path.isdir(output))
     report.stage = stage_line(describe(pipeline), config.stage)
     os.makedirs(output, exist_ok=True)
-    _saved_config(output, config)
-    manifest_path = os.path.join(output, MANIFEST)
-    done = finished(read_manifest(manifest_path), jobs)
-    remove_stale_temporaries(output)
-    report.already_done = len(done)
-    groups = [(g, {j.name for j in g} - done) for g in groups_of(jobs, config.batch)]
-    groups = [(g, todo) for g, todo in groups if todo]
-    todo_count = sum(len(t) for _, t in groups)
-    token = f"{os.getpid()}-{secrets.token_hex(4)}"
-    run_id = token
-    t0 = time.perf_counter()
-    with Manifest(manifest_path) as man, _signals() as caught:
-        man.write(
-            {
-                "event": "start",
-                "run": run_id,
-                "version": __version__,
-                "engine": engine,
-                "workers": workers,
-                "device": str(dev),
-                "jobs": len(jobs),
-                "todo": todo_count,
-                "already_done": len(done),
-                "pipeline": describe(pipeline),
-                "time": now(),
-            }
-        )
-        for job in jobs:
-            if job.error is not None:
-                rec = {"file": job.name, "status": "failed", "error": job.error, "time": now()}
-                man.write(rec)
-                report.failed += 1
-                report.failures.append((job.name, job.error))
-        bar = tqdm(
-            total=todo_count,
-            unit="file",
-            desc="clean",
-            disable=None if progress is None else not progress,
-            file=sys.stderr,
-        )
-        kw = dict(token=token, root=output, stop=lambda: bool(caught))
-        if engine == "local":
-            from .local import run_local
-
-            stream = run_local(
-                groups, pipeline, config, workers=workers, device=dev,
-                compute_in_workers=compute_in_workers, **kw,
-            )  # fmt: skip
-        else:
-            from .ray_engine import run_ray
-
-            stream = run_ray(
-                groups, pipeline, config, device=dev, concurrency=concurrency,
-                address=ray_address, **kw,
-            )  # fmt: skip
-        try:
-            for records in stream:
-                for rec in records:
+    with output_lock(output):  # one run per OUTPUT at a time
+        _saved_config(output, config)
+        manifest_path = os.path.join(output, MANIFEST)
+        done = finished(read_manifest(manifest_path), jobs)
+        remove_stale_temporaries(output)
+        report.already_done = len(done)
+        groups = [(g, {j.name for j in g} - done) for g in groups_of(jobs, config.batch)]
+        groups = [(g, todo) for g, todo in groups if todo]
+        todo_count = sum(len(t) for _, t in groups)
+        token = f"{os.getpid()}-{secrets.token_hex(4)}"
+        run_id = token
+        t0 = time.perf_counter()
+        with Manifest(manifest_path) as man, _signals() as caught:
+            man.write(
+                {
+                    "event": "start",
+                    "run": run_id,
+                    "version": __version__,
+                    "engine": engine,
+                    "workers": workers,
+                    "device": str(dev),
+                    "jobs": len(jobs),
+                    "todo": todo_count,
+                    "already_done": len(done),
+                    "pipeline": describe(pipeline),
+                    "time": now(),
+                }
+            )
+            for job in jobs:
+                if job.error is not None:
+                    rec = {"file": job.name, "status": "failed", "error": job.error, "time": now()}
                     man.write(rec)
-                    for step in report.steps:
-                        report.steps[step] += rec.get(f"{step}_s", 0.0)
-                    if rec["status"] == "done":
-                        report.done += 1
-                        report.frames += rec["frames"]
-                        report.records.append({"status": "done", "report": rec.get("report")})
-                    else:
-                        report.failed += 1
-                        report.failures.append((rec["file"], rec["error"]))
-                bar.update(len(records))
-        finally:
-            stream.close()
-            bar.close()
-            for folder, _, files in os.walk(output):  # this run's temporaries (a stopped worker)
-                for f in files:
-                    if f.startswith(".") and f"{TMP_MARK}{token}" in f:
-                        with contextlib.suppress(FileNotFoundError):
-                            os.remove(os.path.join(folder, f))
-        report.seconds = time.perf_counter() - t0
-        report.interrupted = caught[0] if caught else None
-        if figure and report.done and report.interrupted is None:
+                    report.failed += 1
+                    report.failures.append((job.name, job.error))
+            bar = tqdm(
+                total=todo_count,
+                unit="file",
+                desc="clean",
+                disable=None if progress is None else not progress,
+                file=sys.stderr,
+            )
+            kw = dict(token=token, root=output, stop=lambda: bool(caught))
+            if engine == "local":
+                from .local import run_local
+
+                stream = run_local(
+                    groups, pipeline, config, workers=workers, device=dev,
+                    compute_in_workers=compute_in_workers, **kw,
+                )  # fmt: skip
+            else:
+                from .ray_engine import run_ray
+
+                stream = run_ray(
+                    groups, pipeline, config, device=dev, concurrency=concurrency,
+                    address=ray_address, **kw,
+                )  # fmt: skip
             try:
-                report.figure = report_figure(output, jobs, config)
-            except Exception as exc:  # noqa: BLE001 -- the files are cleaned; say why not drawn
-                report.figure = f"not drawn: {type(exc).__name__}: {exc}"
-        man.write(
-            {
-                "event": "end",
-                "run": run_id,
-                "done": report.done,
-                "failed": report.failed,
-                "interrupted": report.interrupted,
-                "seconds": round(report.seconds, 3),
-                "time": now(),
-            }
-        )
+                for records in stream:
+                    for rec in records:
+                        man.write(rec)
+                        for step in report.steps:
+                            report.steps[step] += rec.get(f"{step}_s", 0.0)
+                        if rec["status"] == "done":
+                            report.done += 1
+                            report.frames += rec["frames"]
+                            report.records.append({"status": "done", "report": rec.get("report")})
+                        else:
+                            report.failed += 1
+                            report.failures.append((rec["file"], rec["error"]))
+                    bar.update(len(records))
+            finally:
+                stream.close()
+                bar.close()
+                for folder, _, files in os.walk(
+                    output
+                ):  # this run's temporaries (a stopped worker)
+                    for f in files:
+                        if f.startswith(".") and f"{TMP_MARK}{token}" in f:
+                            with contextlib.suppress(FileNotFoundError):
+                                os.remove(os.path.join(folder, f))
+            report.seconds = time.perf_counter() - t0
+            report.interrupted = caught[0] if caught else None
+            if figure and report.done and report.interrupted is None:
+                try:
+                    report.figure = report_figure(output, jobs, config)
+                except Exception as exc:  # noqa: BLE001 -- the files are cleaned; say why not drawn
+                    report.figure = f"not drawn: {type(exc).__name__}: {exc}"
+            man.write(
+                {
+                    "event": "end",
+                    "run": run_id,
+                    "done": report.done,
+                    "failed": report.failed,
+                    "interrupted": report.interrupted,
+                    "seconds": round(report.seconds, 3),
+                    "time": now(),
+                }
+            )
     return report
