@@ -15,6 +15,7 @@ the defaults shown)::
     fusion = "data"       # eq. (11) amplitude fusion: off | camera | data | manual
                           #   (default: data with notch = data, camera with design, else off)
     denoise = "none"      # none or a denoiser of tof_fpn_torch.clean.DENOISERS (nlm, bm3d, ...)
+    pattern = "wall.npz"  # a fixed pattern from tof-fpn calibrate, removed first (default: none)
 
     [notch]
     order = 20            # filter order
@@ -99,7 +100,7 @@ PRESETS: dict[str, dict[str, str]] = {
 }
 #: TOML table -> {key: CleanConfig field}
 _TABLES: dict[str, dict[str, str]] = {
-    "pipeline": {k: k for k in ("stage", "destripe", "notch", "fusion", "denoise")},
+    "pipeline": {k: k for k in ("stage", "destripe", "notch", "fusion", "denoise", "pattern")},
     "notch": {"order": "order", "rho": "rho", "gate": "gate"},
     "fusion": {"camera": "camera", "low": "low", "high": "high"},
     "calibration": {"frames": "calibration_frames"},
@@ -121,6 +122,8 @@ class CleanConfig:
             ``"data"`` with ``notch="data"``, ``"camera"`` with ``"design"`` and ``"off"`` without
             a notch.
         denoise: ``"none"`` or a name of :data:`tof_fpn_torch.clean.DENOISERS`.
+        pattern: a pattern file of ``tof-fpn calibrate`` (:mod:`.pattern`), removed from every
+            frame before the other stages (and before they are measured), or None.
         order, rho, gate: the notch filter (``rho=None``: 0.14 for ``design``, from the notch
             frequencies for ``data``).
         camera, low, high: fusion thresholds, in the camera's amplitude units (``camera=None``:
@@ -140,6 +143,7 @@ class CleanConfig:
     notch: str | None = None
     fusion: str | None = None
     denoise: str = "none"
+    pattern: str | None = None
     order: int = K.DEFAULT_ORDER
     rho: float | None = None
     gate: bool = True
@@ -174,6 +178,8 @@ class CleanConfig:
                 f"fusion = {self.fusion!r} blends the notch filter's output: it needs notch = "
                 "'design' or 'data' (got notch = 'off')"
             )
+        if self.pattern is not None and (not isinstance(self.pattern, str) or not self.pattern):
+            raise ValueError(f"pattern must be a file name or absent, got {self.pattern!r}")
         if not isinstance(self.denoise, str) or not self.denoise:
             raise ValueError(f"denoise must be 'none' or a denoiser name, got {self.denoise!r}")
         _int("order", self.order, 1)

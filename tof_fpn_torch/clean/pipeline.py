@@ -33,6 +33,7 @@ from ..build import (
 )
 from ..runtime import Destripe, FPNSuppression
 from .config import CleanConfig
+from .pattern import load_pattern
 
 __all__ = [
     "DENOISERS",
@@ -94,13 +95,20 @@ def make_denoiser(name: str, options: dict) -> nn.Module | None:
 
 
 class CleanPipeline(nn.Module):
-    """The FPN stage then the denoiser, each optional (an empty pipeline returns its input).
+    """A calibrated fixed pattern, the FPN stage, then the denoiser, each optional (an empty
+    pipeline returns its input).
 
     Shape: depth and amplitude (B, 1, H, W) float, metres and camera units; output (B, 1, H, W),
     invalid pixels unchanged (every stage keeps them). Runs without autograd."""
 
-    def __init__(self, fpn: FPNSuppression | None = None, denoiser: nn.Module | None = None):
+    def __init__(
+        self,
+        fpn: FPNSuppression | None = None,
+        denoiser: nn.Module | None = None,
+        pattern: nn.Module | None = None,
+    ):
         super().__init__()
+        self.pattern = pattern
         self.fpn = fpn
         self.denoiser = denoiser
         self.calibration: dict | None = None  # what a data-driven stage was measured on
@@ -109,11 +117,16 @@ class CleanPipeline(nn.Module):
         """(B,) the notch stage's gate per frame (None without a notch filter), for the record."""
         if self.fpn is None or self.fpn.filter is None:
             return None
+        if self.pattern is not None:
+            with torch.no_grad():
+                depth = self.pattern(depth, amplitude)
         return self.fpn.gate_values(depth, amplitude)
 
     @torch.no_grad()
     def forward(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor:
         y = depth
+        if self.pattern is not None:
+            y = self.pattern(y, amplitude)
         if self.fpn is not None:
             y = self.fpn(y, amplitude)
         if self.denoiser is not None:
@@ -166,6 +179,7 @@ def build_pipeline(
         ValueError: a data-driven stage without ``calibration``, or a setting the builders refuse.
     """
     cache: list = []
+    pattern = None if config.pattern is None else load_pattern(config.pattern)
 
     def calib() -> Calibration:
         if calibration is None:
@@ -175,7 +189,14 @@ def build_pipeline(
                 "given"
             )
         if not cache:
-            cache.append(calibration())
+            c = calibration()
+            if pattern is not None:  # the other stages see what the pattern leaves
+                try:
+                    with torch.no_grad():
+                        c = Calibration(pattern(c.depth, c.amplitude), c.amplitude, c.camera)
+                except ValueError as exc:
+                    raise ValueError(f"pattern {config.pattern}: {exc}") from None
+            cache.append(c)
         return cache[0]
 
     destripe = None
@@ -209,7 +230,7 @@ def build_pipeline(
     if fpn is not None and fpn.filter is None and fpn.destripe is None:
         fpn = None  # measured: nothing to do
     denoiser = make_denoiser(config.denoise, config.denoise_options)
-    pipeline = CleanPipeline(fpn, denoiser)
+    pipeline = CleanPipeline(fpn, denoiser, pattern)
     if cache:
         c = cache[0]
         pipeline.calibration = {"frames": int(c.depth.shape[0]), "camera": c.camera}
@@ -242,12 +263,15 @@ def describe(pipeline: CleanPipeline) -> dict:
     if pipeline.denoiser is not None:
         out["denoise"] = f"{type(pipeline.denoiser).__name__}({pipeline.denoiser.extra_repr()})"
     out["calibration"] = pipeline.calibration
+    out["pattern"] = None if pipeline.pattern is None else type(pipeline.pattern).__name__
     return out
 
 
 def stage_line(info: dict, stage: str) -> str:
     """One line saying what the pipeline of :func:`describe` does (what the command prints)."""
     parts = []
+    if info.get("pattern") is not None:
+        parts.append(f"fixed pattern ({info['pattern']})")
     notch = info.get("notch")
     if notch is not None:
         where = {-1: "columns", -2: "rows"}

@@ -25,6 +25,7 @@ COMMANDS: tuple[str, ...] = (
     "reproduce",
     "demo",
     "clean",
+    "calibrate",
     "convert",
     "diagnose",
 )

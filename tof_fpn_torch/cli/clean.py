@@ -70,6 +70,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--fusion", choices=CHOICES["fusion"], help="eq. (11) amplitude fusion")
     g.add_argument("--denoise", choices=DENOISE_CHOICES, help="denoiser after the FPN stage")
     g.add_argument(
+        "--pattern",
+        metavar="FILE",
+        help="a fixed pattern from tof-fpn calibrate, removed from every frame first",
+    )
+    g.add_argument(
         "--denoise-opt",
         type=_option,
         action="append",
@@ -126,6 +131,7 @@ def config_from_args(args: argparse.Namespace) -> CleanConfig:
         notch=args.notch,
         fusion=args.fusion,
         denoise=args.denoise,
+        pattern=None if args.pattern is None else os.path.abspath(args.pattern),
         denoise_options=options,
         order=args.order,
         rho=args.rho,
