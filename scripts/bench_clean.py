@@ -2,8 +2,8 @@
 
 Input: ``--frames`` synthetic 424 x 512 16-bit PNG depth + amplitude pairs (Kinect v2 size: a
 sloped scene in mm, stripes at pi and 2 pi / 3, noise, 1 % invalid pixels; amplitude counts in the
-low-sensing range). Stage: the FPN stage only (the default ``CleanConfig``: notch from the design,
-camera fusion, gate). Measured in one process, the same files, best of ``--repeats``:
+low-sensing range). Stage: the FPN stage only, the paper's (``CleanConfig(stage="paper")``: notch
+from the design, camera fusion, gate; the plain loop runs the same module). Measured in one process, the same files, best of ``--repeats``:
 
 * **plain loop** (with torch's default thread count and with one thread; the faster one is the
   reference of the "vs plain loop" column): for each pair ``imageio.v3.imread`` depth and amplitude, mm -> metres (0 -> NaN),
@@ -112,7 +112,8 @@ def module_alone(src: Path, threads: int, repeats: int) -> dict:
 
 def run_clean(src: Path, dst: Path, workers: int) -> dict:
     start = time.perf_counter()
-    rep = clean(str(src), str(dst), CleanConfig(), workers=workers, device="cpu")
+    config = CleanConfig(stage="paper")
+    rep = clean(str(src), str(dst), config, workers=workers, device="cpu", figure=False)
     seconds = time.perf_counter() - start
     assert rep.status == 0, rep.failures
     return {"seconds": seconds, "steps": rep.steps}

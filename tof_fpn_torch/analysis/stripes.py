@@ -102,6 +102,17 @@ class StripeEstimate:
         return tuple(sorted({c.dim for c in self.components}))
 
 
+def _clipped_scale(dev: torch.Tensor) -> float:
+    """Robust standard deviation of absolute deviations ``dev`` (1-D): a mean |x| refined three
+    times over the values within 3 of its sigmas (de-biased for the clipping of a normal). Unlike
+    a MAD it does not collapse to 0 on two-valued data (a stripe at pi)."""
+    scale = 1.2533141373155003 * float(dev.mean())  # sqrt(pi / 2) mean |x| of a normal
+    for _ in range(3):
+        inside = dev <= 3.0 * scale
+        scale = float(dev[inside].mean()) / 0.786619 if bool(inside.any()) else scale
+    return scale
+
+
 def _profile(
     d: torch.Tensor, valid: torch.Tensor, w: torch.Tensor, smooth: int
 ) -> tuple[torch.Tensor, torch.Tensor, float]:
@@ -122,7 +133,9 @@ def _profile(
     pair = torch.zeros_like(valid)
     pair[..., 1:-1] = valid[..., 2:] & valid[..., :-2]
     if bool(pair.any()):
-        g_sigma = K.MAD_TO_SIGMA * float(grad[pair].median())
+        # a clipped mean, not a MAD: strong stripes at 2 pi / 3 make the central differences
+        # two-valued (0 in a third of the columns), and a MAD of 0 made every stripe an edge
+        g_sigma = _clipped_scale(grad[pair])
         edge = (pair & (grad > 4.0 * g_sigma)).to(d.dtype).unsqueeze(1)
         near = F.max_pool2d(edge, (1, 2 * smooth + 1), 1, (0, smooth)).squeeze(1) > 0
         keep = keep & ~near
@@ -136,11 +149,7 @@ def _profile(
         # clipped mean |p - mean| (not a MAD: a stripe at pi makes the profile two-valued, and
         # the MAD of a two-valued profile is 0)
         dev = (p - p[has].mean()).abs()
-        scale = 1.2533 * float(dev[has].mean())
-        for _ in range(3):
-            inside = has & (dev <= 3.0 * scale)
-            scale = float(dev[inside].mean()) / 0.786619 if bool(inside.any()) else scale
-        has = has & (dev <= 5.0 * scale)
+        has = has & (dev <= 5.0 * _clipped_scale(dev[has]))
     p = torch.where(has, p - p[has].mean() if bool(has.any()) else p, torch.zeros_like(p))
     # r = d - box(d): white noise keeps (1 - 1/n) of its variance
     noise = sigma / math.sqrt(1.0 - 1.0 / (2 * smooth + 1))
