@@ -3,7 +3,7 @@ the truth, on low-sensing striped frames whose stripes follow three amplitude la
 
 Usage::
 
-    python scripts/bench_fusion_from_data.py                     # the final seeds (2000, 2001)
+    python scripts/bench_fusion_from_data.py                     # the final seeds (3000, 3001)
     python scripts/bench_fusion_from_data.py --seeds 0 1         # the development seeds
     python scripts/bench_fusion_from_data.py --json docs/figures/fusion_from_data_bench.json
 
@@ -217,7 +217,7 @@ def run(seeds, sizes=SIZES, scenes=("synthetic", "planar", "blocks")) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--seeds", type=int, nargs="+", default=[2000, 2001])
+    p.add_argument("--seeds", type=int, nargs="+", default=[3000, 3001])
     p.add_argument("--json", type=Path)
     args = p.parse_args()
     torch.set_num_threads(2)

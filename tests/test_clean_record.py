@@ -158,3 +158,14 @@ def test_the_record_of_a_run_that_did_nothing_says_so(tmp_path, capsys):
     rec = [json.loads(x) for x in (tmp_path / "out" / "manifest.jsonl").read_text().splitlines()]
     done = next(r for r in rec if r.get("status") == "done")
     assert done["report"]["changed"] == 0 and not done["report"]["found"]
+
+
+def test_a_raw_pair_without_its_size_names_the_flags(tmp_path):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    np.full((8, 8), 1000, "<u2").tofile(folder / "a_depth.bin")
+    np.full((8, 8), 90, "<u2").tofile(folder / "a_amplitude.bin")
+    rep = clean(str(folder), str(tmp_path / "out"), CleanConfig(stage="paper"), figure=False)
+    assert rep.failed == 1
+    assert "frame size is not in the file" in rep.failures[0][1]
+    assert "--height / --width" in rep.failures[0][1]

@@ -196,15 +196,12 @@ def _analyse(
     cands.sort(key=lambda j: -pw[j])
     found: list[StripeComponent] = []
     taken: list[float] = []  # grid indices of the lines found
-    for j in cands:
-        if len(found) >= max_components:
-            break
-        if any(abs(j - t) < 2.5 * fine for t in taken):
-            continue
 
-        def usable(i: int) -> bool:
-            return 0 < i < last and all(abs(i - t) >= 2.5 * fine for t in taken)
+    def usable(i: int) -> bool:
+        return 0 < i < last and all(abs(i - t) >= 2.5 * fine for t in taken)
 
+    def line(j: int) -> StripeComponent | None:
+        """The line test of candidate ``j`` against references away from the lines found."""
         # references in pairs on both sides, so a sloping background does not bias T; one-sided
         # only next to pi, where nothing lies beyond
         refs = []
@@ -216,7 +213,7 @@ def _analyse(
                 refs.append(lo)
         refs = refs[:_MAX_REFS]
         if len(refs) < 2:
-            continue
+            return None
         ref = sum(pw[i] for i in refs) / len(refs)
         t = pw[j] / max(ref, 1e-300)
         r = len(refs)
@@ -234,20 +231,31 @@ def _analyse(
         scale = 1.0 if abs(freq - math.pi) < 0.5 * (2 * math.pi / n) else 0.5
         amp = math.sqrt(max(pw[j] - ref, 0.0)) / (scale * wsum * max(_box_gain(freq, box), 1e-3))
         if p_fa > false_alarm_max or amp < min_stripe * noise:
-            continue
-        taken.append(j)
-        found.append(
-            StripeComponent(
-                orientation=orientation,
-                dim=dim,
-                frequency=float(freq),
-                strength=float(amp),
-                snr_db=float(10.0 * math.log10(max(t, 1e-300))),
-                false_alarm=float(p_fa),
-                confidence=float(1.0 - p_fa),
-                noise=float(noise),
-            )
+            return None
+        return StripeComponent(
+            orientation=orientation,
+            dim=dim,
+            frequency=float(freq),
+            strength=float(amp),
+            snr_db=float(10.0 * math.log10(max(t, 1e-300))),
+            false_alarm=float(p_fa),
+            confidence=float(1.0 - p_fa),
+            noise=float(noise),
         )
+
+    # strongest candidate first; after each line found, the candidates not yet taken are tested
+    # again from the strongest: their references no longer include it (on a short profile the
+    # references of the line at pi reach down to a line at 2 pi / 3 and hid it)
+    while len(found) < max_components:
+        for j in cands:
+            if usable(j) or (j == last and all(abs(j - t) >= 2.5 * fine for t in taken)):
+                comp = line(j)
+                if comp is not None:
+                    taken.append(j)
+                    found.append(comp)
+                    break
+        else:
+            break
     freqs = torch.arange(len(pw), dtype=torch.float64) * df
     return found, {"frequency": freqs, "power": power, "noise": noise}
 
