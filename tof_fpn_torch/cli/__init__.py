@@ -22,7 +22,6 @@ from ..design import RemezConvergenceError
 COMMANDS: tuple[str, ...] = (
     "design",
     "export",
-    "reproduce",
     "demo",
     "clean",
     "calibrate",
