@@ -19,7 +19,6 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-import torch
 from torch import nn
 
 from ..analysis import (
@@ -28,10 +27,9 @@ from ..analysis import (
     calibrate_complex_pattern,
     calibrate_fixed_pattern,
 )
-from ..runtime import valid_mask
 from .config import CleanConfig
 from .plan import plan_jobs
-from .work import load_group
+from .work import read_jobs
 
 __all__ = ["DOMAINS", "calibrate", "load_pattern", "read_frames"]
 
@@ -44,28 +42,7 @@ def read_frames(input_path: str, config: CleanConfig, limit: int | None = None):
     ``tof-fpn clean`` takes it) of the first frame's size, (N, 1, H, W) metres and camera units,
     at most ``limit``; frames with no valid pixel are left out. ``ValueError`` when there are none.
     """
-    jobs = plan_jobs(input_path, ".")  # the output names are not used
-    depth, amplitude, camera = [], [], None
-    for job in jobs:
-        if job.error is not None:
-            continue
-        (item,) = load_group([job], set(), config)
-        for fs, (d, a) in zip(item.sets or [], item.tensors or [], strict=True):
-            camera = camera or fs.camera
-            if depth and d.shape[-2:] != depth[0].shape[-2:]:
-                continue
-            has = valid_mask(d, a).flatten(1).any(1)
-            depth.append(d[has])
-            amplitude.append(a[has])
-        if limit is not None and sum(x.shape[0] for x in depth) >= limit:
-            break
-    n = sum(x.shape[0] for x in depth)
-    if n == 0:
-        raise ValueError(f"no readable frame with a valid pixel in {input_path!r}")
-    depth, amplitude = torch.cat(depth), torch.cat(amplitude)
-    return (
-        (depth, amplitude, camera) if limit is None else (depth[:limit], amplitude[:limit], camera)
-    )
+    return read_jobs(plan_jobs(input_path, "."), config, limit)  # the output names are not used
 
 
 def calibrate(

@@ -33,7 +33,7 @@ from .manifest import input_identity, now
 from .measure import file_report
 from .plan import Job, temporary
 
-__all__ = ["Loaded", "compute_group", "load_group", "reason", "write_group"]
+__all__ = ["Loaded", "compute_group", "load_group", "read_jobs", "reason", "write_group"]
 
 
 @dataclass
@@ -83,6 +83,31 @@ def load_group(jobs: list[Job], todo: set[str], config: CleanConfig) -> list[Loa
         item.seconds["read"] = time.perf_counter() - t0
         out.append(item)
     return out
+
+
+def read_jobs(jobs: list[Job], config: CleanConfig, limit: int | None = None):
+    """``(depth, amplitude, camera)``: the readable frames of ``jobs`` in order, of the first
+    readable frame's size, at most ``limit``: (N, 1, H, W) metres and camera units (frames with no
+    valid pixel left out), and the first camera a file names (None if none does). What the
+    data-driven stages and ``tof-fpn calibrate`` measure. ``ValueError`` when there is none."""
+    depth, amplitude, camera = [], [], None
+    for job in jobs:
+        if job.error is not None:
+            continue
+        (item,) = load_group([job], set(), config)
+        for fs, (d, a) in zip(item.sets or [], item.tensors or [], strict=True):
+            camera = camera or fs.camera
+            if depth and d.shape[-2:] != depth[0].shape[-2:]:
+                continue
+            has = valid_mask(d, a).flatten(1).any(1)
+            depth.append(d[has])
+            amplitude.append(a[has])
+        if limit is not None and sum(x.shape[0] for x in depth) >= limit:
+            break
+    if not depth or sum(x.shape[0] for x in depth) == 0:
+        raise ValueError("no readable frame with a valid pixel in INPUT")
+    depth, amplitude = torch.cat(depth)[:limit], torch.cat(amplitude)[:limit]
+    return depth, amplitude, camera
 
 
 def compute_group(
