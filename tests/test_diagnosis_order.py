@@ -1,7 +1,7 @@
 """Which effect is named first (issue 10), and the benchmark generator's cyclic-error waveform.
 
 ``_prune`` is backward elimination over the terms the forward rounds added: a term whose removal
-costs less than ``DIAG_MIN_DAIC`` is dropped, and the rest are ordered by what their removal
+costs less than ``naming.MIN_DAIC`` is dropped, and the rest are ordered by what their removal
 costs. Tested with stand-in models whose NLL is a table over the set of terms (no fitting), so
 the ordering rule itself is checked, including the case the forward rounds get wrong: a stand-in
 term that wins the first round but adds little once the true term is in the model.
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from tof_fpn_torch import constants as K
 from tof_fpn_torch.diagnosis import run as R
+from tof_fpn_torch.diagnosis.naming import MIN_DAIC
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -65,9 +65,9 @@ def test_the_term_no_other_explains_is_named_first(monkeypatch):
 
 
 def test_a_term_made_redundant_is_dropped_and_the_rest_ordered(monkeypatch):
-    # three terms: fpn_pattern adds < DIAG_MIN_DAIC once the other two are in; of the two left,
+    # three terms: fpn_pattern adds < MIN_DAIC once the other two are in; of the two left,
     # vignetting's removal costs more
-    small = (K.DIAG_MIN_DAIC - 4) / 2  # nats: a drop cost of 2 * small - 2 < DIAG_MIN_DAIC
+    small = (MIN_DAIC - 4) / 2  # nats: a drop cost of 2 * small - 2 < MIN_DAIC
     full = 500.0
     _patch(
         monkeypatch,
@@ -108,7 +108,7 @@ def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
 
     import torch
 
-    from tof_fpn_torch.diagnosis import model as M
+    from tof_fpn_torch.diagnosis.terms import multipath as M
     from tof_fpn_torch.sim import Camera, Multipath, SimState, synthetic_scene
     from tof_fpn_torch.sim.readout import Photons
 
@@ -131,7 +131,7 @@ def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
         samples = (act + amb * 0.8) * resp
         state = SimState(cam, scene, samples, None)
         if cached:
-            out = M._multipath(term, state, (act, amb), ("test",), 0.8, resp).samples
+            out = M.relay_cached(term, state, (act, amb), ("test",), 0.8, resp).samples
         else:
             out = term.apply(state).samples
         (g_resp, g_relay) = torch.autograd.grad(out.sum(), (resp, relay))

@@ -205,47 +205,8 @@ PAPER_TABLE2: dict[str, tuple[tuple[float, float], ...]] = {
     "sdct": ((24.4, 26.4), (26.2, 27.9), (27.8, 28.1)),
 }
 
-# --- diagnosis: simulation vs. recording (issue 10; tof_fpn_torch.diagnosis) --------------------
-#: Scales of the optimiser's variables: depth-like parameters move in mm steps, correlation
-#: harmonics in 1 % steps of the fundamental.
-DIAG_SCALE_DEPTH: float = 1e-3
-DIAG_SCALE_CYCLIC: float = 0.01
-#: Largest share of impulsive frame-pixels the mixture may fit.
-DIAG_MAX_IMPULSIVE_RATE: float = 0.5
-#: Pixels enter the depth likelihood where the predicted amplitude is at least this many times
-#: the noise of one component of (2/N) X_1 (below it the phase is far from Gaussian) ...
-DIAG_MIN_SNR_DEPTH: float = 5.0
-#: ... and the amplitude likelihood above this (the Rician mean and spread are used).
-DIAG_MIN_SNR_AMPLITUDE: float = 2.0
-#: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels.
-DIAG_SPLIT_BLOCK: int = 8
-#: Iterations of L-BFGS per fit.
-DIAG_FIT_ITERS: int = 40
-#: Family-wise false-alarm probability of the located statistics (Bonferroni over all of them).
-DIAG_ALPHA: float = 0.01
-#: Parametric-bootstrap recordings per null distribution.
-DIAG_BOOTSTRAP: int = 8
-#: Smallest null scale (bootstrap mean / df) a chi^2 statistic may get.
-DIAG_MIN_NULL_SCALE: float = 0.25
-#: A frame-pixel further than this many sigma from the model is a tail event.
-DIAG_TAIL_Z: float = 5.0
-#: A candidate term is named when its held-out log-likelihood gain is at least this many nats ...
-DIAG_MIN_GAIN: float = 10.0
-#: ... and it lowers the AIC on the fitting half by at least this much.
-DIAG_MIN_DAIC: float = 10.0
-#: Iterations of L-BFGS when a candidate term is fitted on the fitting half.
-DIAG_CANDIDATE_ITERS: int = 20
-#: Candidates whose held-out gain is within this share of the best are fitted on (up to
-#: ``DIAG_FIT_ITERS`` per round) before the ranking is taken.
-DIAG_CONTENDER_SHARE: float = 0.25
-#: quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
-#: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md): a
-#: dense grid from the median to the 99.9th percentile, as a clip of many pixels predicts them
-#: to a fraction of their noise and the likelihood is sharp in the level
-DIAG_SATURATION_QUANTILES: tuple[float, ...] = tuple(1 - 0.5 * 0.002 ** (k / 23) for k in range(24))
-#: a pixel that the model moves to within this many depth sd of the wrap boundary (0 / R), its
-#: scene depth not that close, is predicted on the side where its readings are (same phase)
-DIAG_WRAP_BOUNDARY_SD: float = 4.0
+# --- the simulator's diffuse interreflection (sim.Multipath, sim/relay.py) ---------------------
+# (the diagnosis's tuning numbers are in the tof_fpn_torch.diagnosis modules that use them)
 #: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
 #: view (deg), near-field length (m), the step (px) between its source patches, and how many
 #: relay matrices are kept
@@ -254,29 +215,3 @@ MULTIPATH_NEAR_FIELD_M: float = 1.0
 MULTIPATH_RELAY_STEP: int = 8
 MULTIPATH_MAX_SOURCES: int = 300
 RELAY_CACHE_SIZE: int = 2
-#: the diagnosis keeps the relay of its two unit images (2 x (1, N, H, W), small) for this many
-#: geometries: the grid of fields of view and near fields below, tried in every ranking round
-DIAG_RELAY_CACHE_SIZE: int = 16
-#: the diagnosis profiles the scene relay over these fields of view (deg) and near fields (m)
-DIAG_MULTIPATH_FIELDS_OF_VIEW: tuple[float, ...] = (50.0, 70.0, 90.0)
-DIAG_MULTIPATH_NEAR_FIELDS: tuple[float, ...] = (0.3, 1.0, 3.0)
-#: extra paths (shares of the unambiguous range) at which the multipath strength starts
-DIAG_MULTIPATH_PATH_SHARES: tuple[float, ...] = tuple((k + 0.5) / 8 for k in range(8))
-#: After a term is added, the next round re-fits only the candidates whose held-out gain was at
-#: least this many nats (at most ``DIAG_RETRY_MAX`` of them, best first).
-DIAG_RETRY_GAIN: float = 1.0
-DIAG_RETRY_MAX: int = 6
-#: A fit stops when a further round (fresh Hessian, L-BFGS) gains less than this many nats, or
-#: after ``DIAG_FIT_ROUNDS`` rounds.
-DIAG_FIT_TOL: float = 0.5
-DIAG_FIT_ROUNDS: int = 4
-#: Pixels whose temporal mean or spread is within this many sigma of a grossly misfitting model
-#: give the robust starting values that every candidate term is also tried from.
-DIAG_INLIER_Z: float = 4.0
-#: Resolution of the diagnosis figures.
-DIAG_FIGURE_DPI: int = 110
-#: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
-#: out of the likelihood (the smoothing cannot follow the edge there).
-DIAG_EDGE_MARGIN: int = 2
-#: Starting rms of the per-pixel amplitude texture of the estimated-scene baseline.
-DIAG_TEXTURE_RMS: float = 0.02
