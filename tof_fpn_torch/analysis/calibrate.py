@@ -51,6 +51,7 @@ import torch.nn.functional as F
 from .. import constants as K
 from ..runtime._destripe_core import column_offsets
 from ..runtime.fixed_pattern import FixedPatternCorrection
+from ..runtime.noise import mad_to_sigma
 from ..runtime.validity import valid_mask
 
 __all__ = ["FixedPattern", "calibrate_fixed_pattern", "temporal_mean"]
@@ -206,7 +207,7 @@ def temporal_mean(
     v = valid_mask(frames, amplitudes)
     x = torch.where(v, frames.double(), math.nan)
     med = torch.nanmedian(x, dim=0, keepdim=True).values
-    mad = torch.nanmedian((x - med).abs(), dim=0, keepdim=True).values * K.MAD_TO_SIGMA
+    mad = mad_to_sigma(torch.nanmedian((x - med).abs(), dim=0, keepdim=True).values, 1)
     inl = v & ((x - med).abs() <= clip * mad.clamp_min(1e-12) + 1e-12 * med.abs())
     inl = inl | (v & (mad <= 0))
     n = inl.sum(0, keepdim=True).double()

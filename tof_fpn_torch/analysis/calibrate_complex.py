@@ -55,6 +55,7 @@ import torch
 
 from .. import constants as K
 from ..runtime import _destripe_core as core
+from ..runtime.noise import clipped_rms_scale, scale_moment
 from ..runtime._phasor import metres_per_radian, phasor
 from ..runtime.complex_pattern import ComplexPatternCorrection
 from ..runtime.validity import valid_mask
@@ -216,8 +217,8 @@ def _line_offsets(z, v, width, clip, texture_k, ridge, local_width):
     n = torch.cat([-u[:, 1:], u[:, :1]], 1)  # across the phasor
     pilot = _nanmedian_pairs(g, ok)
     across = ((g - pilot) * n).sum(1, keepdim=True).abs()
-    moment = core.scale_moment(1, clip)
-    sig_g = core._robust_scale(
+    moment = scale_moment(1, clip)
+    sig_g = clipped_rms_scale(
         across.reshape(1, 1, 1, -1), ok.reshape(1, 1, 1, -1), clip, moment, 1
     )
     sig_g = float(sig_g[0])  # noise of one channel of g: sqrt(2) times that of z

@@ -50,6 +50,7 @@ import torch.nn.functional as F
 
 from .. import constants as K
 from ..runtime._checks import check_image, check_same_shape
+from ..runtime.noise import clipped_scale, mad_to_sigma
 from ..runtime.validity import valid_mask
 
 __all__ = ["StripeComponent", "StripeEstimate", "estimate_stripes"]
@@ -102,17 +103,6 @@ class StripeEstimate:
         return tuple(sorted({c.dim for c in self.components}))
 
 
-def _clipped_scale(dev: torch.Tensor) -> float:
-    """Robust standard deviation of absolute deviations ``dev`` (1-D): a mean |x| refined three
-    times over the values within 3 of its sigmas (de-biased for the clipping of a normal). Unlike
-    a MAD it does not collapse to 0 on two-valued data (a stripe at pi)."""
-    scale = 1.2533141373155003 * float(dev.mean())  # sqrt(pi / 2) mean |x| of a normal
-    for _ in range(3):
-        inside = dev <= 3.0 * scale
-        scale = float(dev[inside].mean()) / 0.786619 if bool(inside.any()) else scale
-    return scale
-
-
 def _profile(
     d: torch.Tensor, valid: torch.Tensor, w: torch.Tensor, smooth: int
 ) -> tuple[torch.Tensor, torch.Tensor, float]:
@@ -123,8 +113,7 @@ def _profile(
     num = KF.box_blur((d * v).unsqueeze(1), size, border_type="constant").squeeze(1)
     den = KF.box_blur(v.unsqueeze(1), size, border_type="constant").squeeze(1)
     r = torch.where(valid, d - num / den.clamp_min(0.5 / (2 * smooth + 1)), torch.zeros_like(d))
-    mad = float(r[valid].abs().median()) if bool(valid.any()) else 0.0
-    sigma = K.MAD_TO_SIGMA * mad
+    sigma = float(mad_to_sigma(r[valid].abs().median(), 1)) if bool(valid.any()) else 0.0
     keep = valid & (r.abs() <= 4.0 * sigma) if sigma > 0 else valid
     # pixels within the box's reach of a scene edge (a central difference beyond 4 robust sigmas
     # of all central differences) carry the edge's residual: leave them out
@@ -135,7 +124,7 @@ def _profile(
     if bool(pair.any()):
         # a clipped mean, not a MAD: strong stripes at 2 pi / 3 make the central differences
         # two-valued (0 in a third of the columns), and a MAD of 0 made every stripe an edge
-        g_sigma = _clipped_scale(grad[pair])
+        g_sigma = float(clipped_scale(grad[pair]))
         edge = (pair & (grad > 4.0 * g_sigma)).to(d.dtype).unsqueeze(1)
         near = F.max_pool2d(edge, (1, 2 * smooth + 1), 1, (0, smooth)).squeeze(1) > 0
         keep = keep & ~near
@@ -149,7 +138,7 @@ def _profile(
         # clipped mean |p - mean| (not a MAD: a stripe at pi makes the profile two-valued, and
         # the MAD of a two-valued profile is 0)
         dev = (p - p[has].mean()).abs()
-        has = has & (dev <= 5.0 * _clipped_scale(dev[has]))
+        has = has & (dev <= 5.0 * float(clipped_scale(dev[has])))
     p = torch.where(has, p - p[has].mean() if bool(has.any()) else p, torch.zeros_like(p))
     # r = d - box(d): white noise keeps (1 - 1/n) of its variance
     noise = sigma / math.sqrt(1.0 - 1.0 / (2 * smooth + 1))

@@ -21,7 +21,7 @@ level (:mod:`tof_fpn_torch.denoise._common`), and returns invalid pixels unchang
 - :func:`estimate_sigma`, :func:`estimate_noise_k`: robust noise-level estimators.
 """
 
-from ._sigma import estimate_noise_k, estimate_sigma
+from ..runtime.noise import estimate_noise_k, estimate_sigma
 from .bilateral import Bilateral, JointBilateral, bilateral, joint_bilateral
 from .bm3d import BM3D, bm3d
 from .guided import Guided, guided

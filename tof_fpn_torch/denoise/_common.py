@@ -29,7 +29,7 @@ import torch.nn.functional as F
 
 from ..runtime._checks import check_image
 from ..runtime.validity import valid_mask
-from ._sigma import _estimate_noise_k, _estimate_sigma
+from ..runtime.noise import wavelet_noise_k, wavelet_sigma
 from .nlm import _amplitude_floor, _check_sigma_tensor
 
 __all__ = [
@@ -91,10 +91,10 @@ def noise_map(
     vc = valid.expand(B, C, H, W)
     if sigma is None:
         if amp is None:
-            s = _estimate_sigma(xz, vc, wk).mean(dim=1).view(B, 1, 1, 1)
+            s = wavelet_sigma(xz, vc, wk).mean(dim=1).view(B, 1, 1, 1)
             return torch.where(valid, s.expand(B, 1, H, W), torch.zeros_like(valid, dtype=x.dtype))
         if k is None:
-            kk = _estimate_noise_k(xz, amp, vc, wk).mean(dim=1)
+            kk = wavelet_noise_k(xz, amp, vc, wk).mean(dim=1)
         else:
             kk = torch.full([B], k, dtype=x.dtype, device=x.device)
         safe = torch.where(valid, amp.clamp_min(_amplitude_floor(amp, valid)), torch.ones_like(amp))

@@ -35,7 +35,7 @@ from torch import nn
 
 from ._common import check_k, check_window, noise_map, prepare, restore_invalid
 from ._levels import blend, check_levels, levels
-from ._sigma import _estimate_sigma, hh_kernel
+from ..runtime.noise import hh_kernel, wavelet_sigma
 from .nlm import _as_sigma
 
 __all__ = ["Bilateral", "JointBilateral", "bilateral", "joint_bilateral"]
@@ -128,7 +128,7 @@ def _bilateral(
         assert amp is not None
         guide = torch.where(valid, amp, torch.zeros_like(amp))
         if sigma_color is None:
-            sa = _estimate_sigma(guide, valid, wavelet).reshape(B, 1, 1, 1)
+            sa = wavelet_sigma(guide, valid, wavelet).reshape(B, 1, 1, 1)
             rsig = (color * sa).expand(B, 1, H, W)
         else:
             rsig = torch.full((B, 1, H, W), sigma_color, dtype=x.dtype, device=x.device)

@@ -49,7 +49,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
-from ._sigma import hh_kernel
+from ..runtime.noise import hh_kernel
 from .bm3d_core import bm3d_image
 from .nlm import _as_sigma
 

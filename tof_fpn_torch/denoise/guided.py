@@ -34,7 +34,7 @@ from torch import nn
 
 from ._common import check_k, check_window, fill_invalid, noise_map, prepare, restore_invalid
 from ._levels import blend, check_levels, levels
-from ._sigma import _estimate_sigma, hh_kernel
+from ..runtime.noise import hh_kernel, wavelet_sigma
 from .nlm import _as_sigma
 
 __all__ = ["Guided", "guided"]
@@ -97,7 +97,7 @@ def guided(
         assert amp is not None
         g = fill_invalid(amp, valid)
         if eps is None:
-            sa = _estimate_sigma(torch.where(valid, amp, torch.zeros_like(amp)), valid, wavelet)
+            sa = wavelet_sigma(torch.where(valid, amp, torch.zeros_like(amp)), valid, wavelet)
             rsig = (color * sa.reshape(B, 1, 1, 1)).expand(B, 1, H, W)
         else:
             rsig = torch.full((B, 1, H, W), eps**0.5, dtype=x.dtype, device=x.device)

@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ._common import check_k, noise_map, prepare, restore_invalid
-from ._sigma import _estimate_sigma, hh_kernel
+from ..runtime.noise import hh_kernel, wavelet_sigma
 from .nlm import _as_sigma
 
 __all__ = ["HypothesisBilateral", "hypothesis_bilateral"]
@@ -210,7 +210,7 @@ def _hypothesis_bilateral(
             if amp is not None:
                 guide = torch.where(vb, amp[b : b + 1], torch.zeros_like(sb))
                 if sigma_color is None:
-                    sa = _estimate_sigma(guide, vb, wk).reshape(1, 1, 1, 1)
+                    sa = wavelet_sigma(guide, vb, wk).reshape(1, 1, 1, 1)
                     sc = color * sa
                 else:
                     sc = torch.full([1, 1, 1, 1], sigma_color, dtype=x.dtype, device=x.device)

@@ -34,7 +34,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
-from ._sigma import hh_kernel
+from ..runtime.noise import hh_kernel
 from .nlm import _as_sigma
 
 __all__ = ["LPAICI", "lpa_ici", "lpa_kernels"]

@@ -54,7 +54,7 @@ from torch import nn
 from .. import constants as K
 from ..runtime._checks import check_image
 from ..runtime.validity import valid_mask
-from ._sigma import _estimate_noise_k, _estimate_sigma, hh_kernel
+from ..runtime.noise import hh_kernel, wavelet_noise_k, wavelet_sigma
 from .nlm_core import nlm_core, patch_taps
 
 __all__ = ["NonLocalMeans", "non_local_means"]
@@ -225,14 +225,14 @@ def _non_local_means(
     sig_img = torch.zeros(B, 1, 1, 1, dtype=work_dtype, device=x.device)
     if amplitude is not None and sigma is None:
         if k is None:
-            kk = _estimate_noise_k(x, amp, valid_c, wkernel).mean(dim=1)
+            kk = wavelet_noise_k(x, amp, valid_c, wkernel).mean(dim=1)
         else:
             kk = torch.full([B], k, dtype=work_dtype, device=x.device)
         safe = torch.where(valid, amp.clamp_min(_amplitude_floor(amp, valid)), torch.ones_like(amp))
         sig_map = kk.view(B, 1, 1, 1) / safe
         half_var = torch.where(valid, 0.5 * sig_map * sig_map, torch.zeros_like(sig_map))
     elif sigma is None:
-        sig_img = _estimate_sigma(x, valid_c, wkernel).mean(dim=1).view(B, 1, 1, 1)
+        sig_img = wavelet_sigma(x, valid_c, wkernel).mean(dim=1).view(B, 1, 1, 1)
     elif isinstance(sigma, float):
         if not (sigma >= 0.0 and sigma < float("inf")):
             raise ValueError(f"sigma must be a finite number >= 0, got {sigma}")

@@ -39,21 +39,9 @@ import torch
 import torch.nn.functional as F
 
 from .. import constants as K
+from .noise import clipped_rms_scale, mad_to_sigma, scale_moment
 
-__all__ = ["band_shrink", "column_offsets", "scale_moment"]
-
-
-def scale_moment(channels: int, clip: float) -> float:
-    """``E[|e|^2 | |e| <= clip sigma] / sigma^2`` for ``e`` with ``channels`` i.i.d. N(0, sigma^2)
-    components (1: truncated normal; 2: truncated Rayleigh), used to de-bias the clipped RMS."""
-    c = float(clip)
-    if channels == 1:
-        p = math.erf(c / math.sqrt(2.0))
-        dens = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
-        return 1.0 - 2.0 * c * dens / p
-    t = 0.5 * c * c
-    p = 1.0 - math.exp(-t)
-    return 2.0 * (1.0 - math.exp(-t) * (1.0 + t)) / p
+__all__ = ["band_shrink", "column_offsets"]
 
 
 def _magnitude(e: torch.Tensor) -> torch.Tensor:
@@ -61,34 +49,6 @@ def _magnitude(e: torch.Tensor) -> torch.Tensor:
     if e.shape[1] == 1:
         return e.abs()
     return torch.sqrt((e * e).sum(1, keepdim=True))
-
-
-def _robust_scale(
-    mag: torch.Tensor, ok: torch.Tensor | None, clip: float, moment: float, channels: int
-) -> torch.Tensor:
-    """Per-image scale (N,) of the per-channel noise from magnitudes ``mag`` (N, 1, R, C) at the
-    usable entries ``ok`` (None: all): a MAD-type start refined by clipped-RMS iterations."""
-    n = mag.shape[0]
-    flat = mag.reshape(n, -1)
-    sq = flat * flat
-    if ok is None:
-        okf = torch.ones_like(flat, dtype=torch.bool)
-        med = flat.median(dim=1).values
-    else:
-        okf = ok.reshape(n, -1)
-        sq = torch.where(okf, sq, 0.0)
-        med = torch.nanmedian(torch.where(okf, flat, math.nan), dim=1).values
-        med = torch.nan_to_num(med, nan=0.0)
-    count = okf.sum(1).to(mag.dtype)
-    # the median of |e| is sigma / MAD_TO_SIGMA for K = 1 and sqrt(2 ln 2) sigma for K = 2
-    start = med * K.MAD_TO_SIGMA if channels == 1 else med / math.sqrt(2.0 * math.log(2.0))
-    rms = torch.sqrt(sq.sum(1) / count.clamp_min(1.0) / channels)
-    sigma = torch.where(start > 0, start, rms)
-    for _ in range(2):
-        sel = okf & (flat <= clip * sigma[:, None])
-        m2 = torch.where(sel, sq, 0.0).sum(1) / sel.sum(1).clamp_min(1)
-        sigma = torch.sqrt(m2 / moment)
-    return sigma
 
 
 def _inliers(g: torch.Tensor, centre: torch.Tensor, limit: torch.Tensor) -> torch.Tensor:
@@ -138,7 +98,7 @@ def _pilot(
     else:  # torch's median is the lower middle value: the ((n + 1) // 2)-th smallest
         kth = (gs.shape[2] + 1) // 2
         pilot = gs.transpose(2, 3).contiguous().kthvalue(kth, dim=3).values[:, :, None]
-    sigma = _robust_scale(_magnitude(gs - pilot), oks, clip, moment, k)
+    sigma = clipped_rms_scale(_magnitude(gs - pilot), oks, clip, moment, k)
     pilot = _trimmed_means(gs, oks, pilot, clip * sigma[:, None, None, None])
     return pilot, sigma
 
@@ -181,8 +141,7 @@ def _reject_steps(m: torch.Tensor, clip: float) -> torch.Tensor:
     med = torch.quantile(m, 0.5, dim=-1, keepdim=True)
     mag = _magnitude(m - med)
     typical = torch.quantile(mag, 0.5, dim=-1, keepdim=True)
-    # the median of |e| is sigma / MAD_TO_SIGMA for K = 1 and sqrt(2 ln 2) sigma for K = 2
-    sigma = typical * K.MAD_TO_SIGMA if m.shape[1] == 1 else typical / math.sqrt(2 * math.log(2))
+    sigma = mad_to_sigma(typical, m.shape[1])
     edge = (mag > clip * sigma) & (sigma > 0)
     rare = edge.to(m.dtype).mean(-1, keepdim=True) <= K.DESTRIPE_MAX_EDGE_SHARE
     return torch.where(edge & rare, med, m)

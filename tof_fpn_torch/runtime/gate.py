@@ -61,6 +61,7 @@ import torch
 
 from .. import constants as K
 from .fpn_filter import _tracing
+from .noise import clipped_scale
 
 __all__ = ["false_alarm_threshold", "noise_power", "risk_shrinkage", "stripe_gate"]
 
@@ -69,21 +70,6 @@ def false_alarm_threshold(references: int, probability: float = K.GATE_FALSE_ALA
     """``t`` with ``P(F(2, 2R) > t) = (1 + t / R)^-R = probability`` for ``R`` references."""
     r = float(references)
     return r * (probability ** (-1.0 / r) - 1.0)
-
-
-def _robust_scale(e: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
-    """(B, 1, 1, 1) robust standard deviation of ``e`` over ``keep``: clipped mean |e|."""
-    a = torch.where(keep, e.abs(), torch.zeros_like(e))
-    n = keep.sum((-3, -2, -1), keepdim=True).clamp_min(1).to(e.dtype)
-    s = 1.2533141373155003 * a.sum((-3, -2, -1), keepdim=True) / n  # sqrt(pi/2) mean|e|
-    for _ in range(3):
-        inside = keep & (a <= 3.0 * s)
-        m = inside.sum((-3, -2, -1), keepdim=True).clamp_min(1).to(e.dtype)
-        # E|e| of a normal clipped at 3 sigma is 0.7866 sigma (instead of 0.7979)
-        s = torch.where(inside, a, torch.zeros_like(a)).sum((-3, -2, -1), keepdim=True) / (
-            0.786619 * m
-        )
-    return s.clamp_min(1e-30)
 
 
 def _line_power(
@@ -166,7 +152,7 @@ def line_gate(
     e = x - filtered
     keep = torch.isfinite(e) if valid is None else valid & torch.isfinite(e)
     e = torch.where(keep, e, torch.zeros_like(e))
-    s = _robust_scale(e, keep)
+    s = clipped_scale(e, keep, [-3, -2, -1]).clamp_min(1e-30)
     k = keep & (e.abs() <= 3.0 * s)
     xk = torch.where(k, x, torch.zeros_like(x))
     noise = (s / math.sqrt(max(gain, 1e-12))).flatten()
@@ -225,10 +211,10 @@ def noise_power(
         if not dense:
             a = torch.where(ok, a, torch.zeros_like(a))
         a4 = 0.25 * (a[..., :-1, :-1] + a[..., :-1, 1:] + a[..., 1:, :-1] + a[..., 1:, 1:])
-        k = _robust_scale(d * a4, ok4)
+        k = clipped_scale(d * a4, ok4, [-3, -2, -1]).clamp_min(1e-30)
         law = (k / a4.clamp_min(1e-30)) ** 2
     else:
-        law = (_robust_scale(d, ok4) ** 2).expand_as(d)
+        law = (clipped_scale(d, ok4, [-3, -2, -1]).clamp_min(1e-30) ** 2).expand_as(d)
     r = K.GATE_NOISE_WINDOW // 2
     # the local mean of d^2 over the window's usable blocks (count_include_pad=False: borders)
     local = torch.nn.functional.avg_pool2d(d * d, K.GATE_NOISE_WINDOW, 1, r, False, False)
