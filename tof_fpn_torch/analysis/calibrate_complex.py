@@ -55,9 +55,9 @@ import torch
 
 from .. import constants as K
 from ..runtime import _destripe_core as core
-from ..runtime.noise import clipped_rms_scale, scale_moment
 from ..runtime._phasor import metres_per_radian, phasor
 from ..runtime.complex_pattern import ComplexPatternCorrection
+from ..runtime.noise import clipped_rms_scale, scale_moment
 from ..runtime.validity import valid_mask
 from .calibrate import _npy, _npy_bytes, _read_npy
 
@@ -218,9 +218,7 @@ def _line_offsets(z, v, width, clip, texture_k, ridge, local_width):
     pilot = _nanmedian_pairs(g, ok)
     across = ((g - pilot) * n).sum(1, keepdim=True).abs()
     moment = scale_moment(1, clip)
-    sig_g = clipped_rms_scale(
-        across.reshape(1, 1, 1, -1), ok.reshape(1, 1, 1, -1), clip, moment, 1
-    )
+    sig_g = clipped_rms_scale(across.reshape(1, 1, 1, -1), ok.reshape(1, 1, 1, -1), clip, moment, 1)
     sig_g = float(sig_g[0])  # noise of one channel of g: sqrt(2) times that of z
     amp2 = 0.25 * mag * mag
     ref2 = (texture_k * sig_g) ** 2 / 2.0

@@ -33,10 +33,9 @@ import torch
 from kornia.filters import bilateral_blur, joint_bilateral_blur
 from torch import nn
 
-from ._common import check_k, check_window, noise_map, prepare, restore_invalid
-from ._levels import blend, check_levels, levels
 from ..runtime.noise import hh_kernel, wavelet_sigma
-from .nlm import _as_sigma
+from ._common import as_sigma, check_k, check_window, noise_map, prepare, restore_invalid
+from ._levels import blend, check_levels, levels
 
 __all__ = ["Bilateral", "JointBilateral", "bilateral", "joint_bilateral"]
 
@@ -113,7 +112,7 @@ def _bilateral(
     max_levels: int,
     joint: bool,
 ) -> torch.Tensor:
-    sigma = _as_sigma(sigma)
+    sigma = as_sigma(sigma)
     _check(kernel_size, sigma_space, color, sigma_color)
     if joint and amplitude is None:
         raise ValueError("JointBilateral needs the amplitude (the guide)")

@@ -48,10 +48,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
 from ..runtime.noise import hh_kernel
+from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
 from .bm3d_core import bm3d_image
-from .nlm import _as_sigma
 
 __all__ = ["BM3D", "bm3d", "psd_block_covariance"]
 
@@ -226,7 +225,7 @@ def _bm3d(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check_params(block_size, step, search_radius, max_blocks, tau, lam, mu2, features_wiener, beta)
     _check_transform(transform_ht, block_size)
     x, valid, amp = prepare(depth, amplitude, signed)

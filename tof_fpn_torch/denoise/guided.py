@@ -32,10 +32,17 @@ import torch
 from kornia.filters import guided_blur
 from torch import nn
 
-from ._common import check_k, check_window, fill_invalid, noise_map, prepare, restore_invalid
-from ._levels import blend, check_levels, levels
 from ..runtime.noise import hh_kernel, wavelet_sigma
-from .nlm import _as_sigma
+from ._common import (
+    as_sigma,
+    check_k,
+    check_window,
+    fill_invalid,
+    noise_map,
+    prepare,
+    restore_invalid,
+)
+from ._levels import blend, check_levels, levels
 
 __all__ = ["Guided", "guided"]
 
@@ -83,7 +90,7 @@ def guided(
         (B, C, H, W), dtype of ``depth``; invalid pixels unchanged; images without noise or
         without valid pixels unchanged.
     """
-    sigma = _as_sigma(sigma)
+    sigma = as_sigma(sigma)
     _check(kernel_size, color, eps, guide)
     if guide == "amplitude" and amplitude is None:
         raise ValueError("guide='amplitude' needs the amplitude")

@@ -37,9 +37,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import check_k, noise_map, prepare, restore_invalid
 from ..runtime.noise import hh_kernel, wavelet_sigma
-from .nlm import _as_sigma
+from ._common import as_sigma, check_k, noise_map, prepare, restore_invalid
 
 __all__ = ["HypothesisBilateral", "hypothesis_bilateral"]
 
@@ -191,7 +190,7 @@ def _hypothesis_bilateral(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check(hypotheses, kernel_size, sigma_space, color, sigma_color, trunc, iterations)
     x, valid, amp = prepare(depth, amplitude, signed)
     B, C, H, W = x.shape

@@ -33,9 +33,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
 from ..runtime.noise import hh_kernel
-from .nlm import _as_sigma
+from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
 
 __all__ = ["LPAICI", "lpa_ici", "lpa_kernels"]
 
@@ -189,7 +188,7 @@ def _lpa_ici(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check(directions, scales, order, gamma)
     x, valid, amp = prepare(depth, amplitude, signed)
     B, C, H, W = x.shape

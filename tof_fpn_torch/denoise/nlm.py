@@ -53,33 +53,12 @@ from torch import nn
 
 from .. import constants as K
 from ..runtime._checks import check_image
-from ..runtime.validity import valid_mask
 from ..runtime.noise import hh_kernel, wavelet_noise_k, wavelet_sigma
+from ..runtime.validity import valid_mask
+from ._common import amplitude_floor, as_sigma, check_sigma_tensor
 from .nlm_core import nlm_core, patch_taps
 
 __all__ = ["NonLocalMeans", "non_local_means"]
-
-
-def _amplitude_floor(amp: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """(B, 1, 1, 1): ``NLM_AMPLITUDE_FLOOR`` times the median of each image's valid amplitudes."""
-    pos = torch.where(valid & (amp > 0), amp, torch.full_like(amp, math.nan))
-    med = torch.nanmedian(pos.flatten(1), dim=1).values
-    return torch.nan_to_num(K.NLM_AMPLITUDE_FLOOR * med, nan=1.0).clamp_min(1e-30).view(-1, 1, 1, 1)
-
-
-@torch.jit.unused
-def _as_sigma(sigma):
-    """Python numbers (int, NumPy scalars) as float; tensors and None as they are."""
-    if sigma is None or isinstance(sigma, (torch.Tensor, float)):
-        return sigma
-    if isinstance(sigma, (bool, str, bytes)):
-        raise ValueError(f"sigma must be a number, a tensor or None, got {type(sigma).__name__}")
-    try:
-        return float(sigma)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"sigma must be a number, a tensor or None, got {type(sigma).__name__}"
-        ) from None
 
 
 def _check_params(
@@ -96,25 +75,6 @@ def _check_params(
     if k is not None:
         if not (k > 0.0 and k < float("inf")):
             raise ValueError(f"k must be None (estimate it) or a finite number > 0, got {k}")
-
-
-def _check_sigma_tensor(sigma: torch.Tensor, B: int, H: int, W: int) -> None:
-    shape = list(sigma.shape)
-    ok = sigma.dim() == 0 or (sigma.dim() == 1 and (shape[0] == B or shape[0] == 1))
-    if sigma.dim() == 4:
-        ok = (
-            (shape[0] == B or shape[0] == 1)
-            and shape[1] == 1
-            and (shape[2] == H or shape[2] == 1)
-            and (shape[3] == W or shape[3] == 1)
-        )
-    if not ok:
-        raise ValueError(
-            f"sigma must be a float, a 0-d tensor, a (B,) tensor or a (B, 1, H, W) map "
-            f"(B={B}, H={H}, W={W}; size-1 axes broadcast), got shape {shape}"
-        )
-    if not sigma.is_floating_point():
-        raise ValueError(f"sigma must be a floating-point tensor, got dtype {sigma.dtype}")
 
 
 def non_local_means(
@@ -194,7 +154,7 @@ def _non_local_means(
     """:func:`non_local_means` with the (1, 1, 4, 4) ``db2`` detail kernel passed in."""
     check_image(depth, "depth")
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check_params(patch_size, patch_distance, h, k, kernel)
     B, C, H, W = depth.shape
     if H < 1 or W < 1:
@@ -228,7 +188,7 @@ def _non_local_means(
             kk = wavelet_noise_k(x, amp, valid_c, wkernel).mean(dim=1)
         else:
             kk = torch.full([B], k, dtype=work_dtype, device=x.device)
-        safe = torch.where(valid, amp.clamp_min(_amplitude_floor(amp, valid)), torch.ones_like(amp))
+        safe = torch.where(valid, amp.clamp_min(amplitude_floor(amp, valid)), torch.ones_like(amp))
         sig_map = kk.view(B, 1, 1, 1) / safe
         half_var = torch.where(valid, 0.5 * sig_map * sig_map, torch.zeros_like(sig_map))
     elif sigma is None:
@@ -238,7 +198,7 @@ def _non_local_means(
             raise ValueError(f"sigma must be a finite number >= 0, got {sigma}")
         sig_img = torch.full([B, 1, 1, 1], sigma, dtype=work_dtype, device=x.device)
     else:
-        _check_sigma_tensor(sigma, B, H, W)
+        check_sigma_tensor(sigma, B, H, W)
         sg = sigma.detach().to(device=x.device, dtype=work_dtype)
         if sg.dim() == 4 and (sg.shape[2] != 1 or sg.shape[3] != 1):
             sg = sg.expand(B, 1, H, W)

@@ -21,10 +21,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
 from ..runtime.noise import hh_kernel
+from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
 from .bm3d_core import _aggregate, _synthesis, _transform, dct_matrix
-from .nlm import _as_sigma
 
 __all__ = ["SlidingDCT", "sliding_dct"]
 
@@ -126,7 +125,7 @@ def _sliding_dct(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check(block_size, step, lam, beta)
     x, valid, amp = prepare(depth, amplitude, signed)
     B, C, H, W = x.shape
