@@ -65,7 +65,9 @@ def filter_from_design(
     max_ripple_db: float | None = MAX_RIPPLE_DB,
     **kwargs,
 ) -> FPNFilter:
-    """Design taps with :func:`tof_fpn_torch.design.design_fpn` and build an :class:`FPNFilter`.
+    """Design taps with :func:`tof_fpn_torch.design.design_fpn` and build an :class:`FPNFilter`
+    (its taps are the design's, delay-compensated for odd orders: a module, not another way to
+    get taps; ``design_fpn(...).taps`` are the taps).
 
     ``compensate_delay`` (default) convolves the taps of an odd order with a half-sample
     interpolator (:func:`tof_fpn_torch.design.compensate_half_sample`), so the output stays on the

@@ -343,29 +343,17 @@ def _highest_verified_order(attempt, max_drop: int):
     return None
 
 
-def design_fpn_filter(
-    order: int,
-    rho: float,
-    *,
-    notches: Sequence[float] = DEFAULT_NOTCHES,
-    band_weights: Sequence[float] | None = None,
-    unit_dc: bool = True,
-    grid_density: int = 8,
-    maxiter: int = 100,
-) -> np.ndarray:
-    """Taps ``h[0..order]`` (float64) of the FPN notch filter; see :func:`design_fpn`.
+def design_fpn_filter(order: int, rho: float, **kwargs) -> np.ndarray:
+    """Alias of ``design_fpn(order, rho, **kwargs).taps``, kept for the public API.
+
+    :func:`design_fpn` is the one way from a specification to taps: its :class:`FPNDesign` holds
+    them (``.taps``) with the figures of merit. The run-time modules get theirs from
+    :func:`tof_fpn_torch.build.filter_from_design`, which calls :func:`design_fpn` (and, for odd
+    orders, compensates the half-sample delay).
 
     Example:
         >>> h = design_fpn_filter(20, 0.14)
         >>> h.shape
         (21,)
     """
-    return design_fpn(
-        order,
-        rho,
-        notches=notches,
-        band_weights=band_weights,
-        unit_dc=unit_dc,
-        grid_density=grid_density,
-        maxiter=maxiter,
-    ).taps
+    return design_fpn(order, rho, **kwargs).taps
