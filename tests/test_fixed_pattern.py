@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from tof_fpn_torch import constants as K
-from tof_fpn_torch.analysis.calibrate import FixedPattern, calibrate_fixed_pattern
+from tof_fpn_torch.analysis.calibrate import MIN_PIXEL_FRAMES, FixedPattern, calibrate_fixed_pattern
 from tof_fpn_torch.export import export_onnx, export_torchscript
 from tof_fpn_torch.runtime import FixedPatternCorrection
 from tof_fpn_torch.runtime._destripe_core import highpass
@@ -67,9 +67,9 @@ def test_recovers_column_row_and_pixel_offsets(pattern):
 
 
 def test_pixel_offsets_need_flat_field_and_frames(pattern):
-    frames, _ = _flat_field(pattern, frames=K.CALIBRATION_MIN_PIXEL_FRAMES - 1)
+    frames, _ = _flat_field(pattern, frames=MIN_PIXEL_FRAMES - 1)
     assert calibrate_fixed_pattern(frames, flat_field=True).pixel_offset is None
-    frames, _ = _flat_field(pattern, frames=K.CALIBRATION_MIN_PIXEL_FRAMES)
+    frames, _ = _flat_field(pattern, frames=MIN_PIXEL_FRAMES)
     assert calibrate_fixed_pattern(frames).pixel_offset is None
     assert calibrate_fixed_pattern(frames, flat_field=True).pixel_offset is not None
 

@@ -54,9 +54,13 @@ from ..runtime.fixed_pattern import FixedPatternCorrection
 from ..runtime.noise import mad_to_sigma
 from ..runtime.validity import valid_mask
 
-__all__ = ["FixedPattern", "calibrate_fixed_pattern", "temporal_mean"]
+__all__ = ["MIN_PIXEL_FRAMES", "FixedPattern", "calibrate_fixed_pattern", "temporal_mean"]
 
 _FORMAT = "tof_fpn_torch.fixed_pattern/1"
+
+#: :func:`calibrate_fixed_pattern` calibrates per-pixel offsets (flat field) only from at least this
+#: many frames per group: a pixel's standard error is then at most a third of one frame's noise.
+MIN_PIXEL_FRAMES: int = 9
 
 
 @dataclass
@@ -265,7 +269,7 @@ def calibrate_fixed_pattern(
     flat_field: bool = False,
     width: int = K.DESTRIPE_WIDTH,
     clip: float = K.DESTRIPE_CLIP,
-    min_pixel_frames: int = K.CALIBRATION_MIN_PIXEL_FRAMES,
+    min_pixel_frames: int = MIN_PIXEL_FRAMES,
 ) -> FixedPattern:
     """Estimate the fixed pattern of (T, 1, H, W) ``frames`` of a static scene (module docstring).
 

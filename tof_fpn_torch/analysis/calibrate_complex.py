@@ -61,9 +61,34 @@ from ..runtime.noise import clipped_rms_scale, scale_moment
 from ..runtime.validity import valid_mask
 from .calibrate import _npy, _npy_bytes, _read_npy
 
-__all__ = ["ComplexPattern", "calibrate_complex_pattern"]
+__all__ = [
+    "AMPLITUDE_CAP",
+    "RIDGE",
+    "TEXTURE_K",
+    "WIDTH",
+    "ComplexPattern",
+    "calibrate_complex_pattern",
+]
 
 _FORMAT = "tof_fpn_torch.complex_pattern/1"
+
+#: Width (columns) of the high-pass of the calibrated profile (at most a quarter of the line is
+#: used): wider than the single frame's ``DESTRIPE_WIDTH``, as T frames average the scene's slow
+#: column profile down (51 against 31 on the raw simulator: +0.14 dB over the 16 calibrations of
+#: docs/destripe.md, +0.5 dB at the darkest level, -0.1 dB on the bright planar scene).
+WIDTH: int = 51
+#: A pixel brighter than this multiple of its frame's median amplitude is left out of the estimate
+#: (its scene texture is strongest and a read-out offset barely moves its depth: the error is
+#: ``|o| / A``); 2: measured best of 1.5 - 3 on the raw simulator (docs/destripe.md).
+AMPLITUDE_CAP: float = 2.0
+#: The component of a pixel's column difference along its own phasor (where amplitude texture
+#: lies) is weighted ``1 - beta``, ``beta = A^2 / (A^2 + (k sigma)^2)`` with ``sigma`` the
+#: per-channel noise of ``z`` and ``k`` this value (2 - 5 measured equally good; 10 lets the
+#: painted wall of the bright planar scene in).
+TEXTURE_K: float = 3.0
+#: Ridge (share of the pixel count) on the 2 x 2 normal equations of each column pair: a direction
+#: seen by fewer pixels than this share (a column of one phase) is left at ~0.
+RIDGE: float = 0.02
 
 
 @dataclass
@@ -87,9 +112,9 @@ class ComplexPattern:
     row_offset_im: torch.Tensor | None = None
     column_pixels: torch.Tensor | None = None
     frames: int = 0
-    width: int = K.COMPLEX_CAL_WIDTH
-    amplitude_cap: float = K.COMPLEX_CAL_AMPLITUDE_CAP
-    texture_k: float = K.COMPLEX_CAL_TEXTURE_K
+    width: int = WIDTH
+    amplitude_cap: float = AMPLITUDE_CAP
+    texture_k: float = TEXTURE_K
     noise_sigma: float = 0.0
     shrink_factor: float = 0.0
     height: int = -1
@@ -284,11 +309,11 @@ def calibrate_complex_pattern(
     modulation_frequency_hz: float,
     *,
     rows: bool = False,
-    width: int = K.COMPLEX_CAL_WIDTH,
+    width: int = WIDTH,
     clip: float = K.DESTRIPE_CLIP,
-    amplitude_cap: float = K.COMPLEX_CAL_AMPLITUDE_CAP,
-    texture_k: float = K.COMPLEX_CAL_TEXTURE_K,
-    ridge: float = K.COMPLEX_CAL_RIDGE,
+    amplitude_cap: float = AMPLITUDE_CAP,
+    texture_k: float = TEXTURE_K,
+    ridge: float = RIDGE,
     local_width: int = K.DESTRIPE_LOCAL_WIDTH,
 ) -> ComplexPattern:
     """Estimate the complex column (and row) offsets of the read-out from (T, 1, H, W) depth

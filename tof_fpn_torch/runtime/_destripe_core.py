@@ -41,7 +41,21 @@ import torch.nn.functional as F
 from .. import constants as K
 from .noise import clipped_rms_scale, mad_to_sigma, scale_moment
 
-__all__ = ["band_shrink", "column_offsets"]
+__all__ = ["MAX_EDGE_SHARE", "NULL_Z", "band_shrink", "column_offsets"]
+
+# Settings of the estimator (beyond the paper; the ones the calibration shares are in
+# tof_fpn_torch.constants). TorchScript reads no module-level number inside a function, so they
+# enter the functions as parameter defaults.
+#: A column step further than ``DESTRIPE_STEP_CLIP`` robust sigmas from the median step is a scene
+#: edge that most rows share, not a stripe: dropped, unless more than this share of the columns
+#: would be dropped: then they are a mode of the steps (periodic stripes such as the paper's at
+#: pi make them bimodal), not rare edges (step 4).
+MAX_EDGE_SHARE: float = 0.25
+#: The cross-validated shrinkage keeps a profile band only as far as the energy common to the top
+#: and the bottom half exceeds this many of its standard deviations without stripes (2.5: the
+#: largest value that keeps >= 10 dB on the real ADI wall; stripe-free scenes then change by
+#: < 0.1 dB, docs/destripe.md) (step 6).
+NULL_Z: float = 2.5
 
 
 def _magnitude(e: torch.Tensor) -> torch.Tensor:
@@ -130,11 +144,13 @@ def _half_means(
     return s.double() / max(1, x.shape[2])
 
 
-def _reject_steps(m: torch.Tensor, clip: float) -> torch.Tensor:
+def _reject_steps(
+    m: torch.Tensor, clip: float, max_edge_share: float = MAX_EDGE_SHARE
+) -> torch.Tensor:
     """Pair means (N, K, C) whose distance from their median over the columns exceeds ``clip``
     robust sigmas (MAD) of that distance are scene edges that most rows share (a stripe step is
     one of a population of similar steps; a wall-to-box edge is rare): they are replaced by the
-    median. Unless they are more than ``DESTRIPE_MAX_EDGE_SHARE`` of the columns: then they are a
+    median. Unless they are more than ``max_edge_share`` (:data:`MAX_EDGE_SHARE`) of the columns: then they are a
     mode of the steps, not edges (a periodic pattern such as the paper's stripes at pi makes the
     steps bimodal, and the median sits on one mode), and nothing is rejected. Medians are
     mid-point ones (``quantile(0.5)``); a zero scale rejects nothing."""
@@ -143,7 +159,7 @@ def _reject_steps(m: torch.Tensor, clip: float) -> torch.Tensor:
     typical = torch.quantile(mag, 0.5, dim=-1, keepdim=True)
     sigma = mad_to_sigma(typical, m.shape[1])
     edge = (mag > clip * sigma) & (sigma > 0)
-    rare = edge.to(m.dtype).mean(-1, keepdim=True) <= K.DESTRIPE_MAX_EDGE_SHARE
+    rare = edge.to(m.dtype).mean(-1, keepdim=True) <= max_edge_share
     return torch.where(edge & rare, med, m)
 
 
@@ -296,7 +312,12 @@ def band_widths(width: int) -> list[int]:
 
 
 def _factor(
-    top: torch.Tensor, bot: torch.Tensor, full: torch.Tensor, local: bool, window: int
+    top: torch.Tensor,
+    bot: torch.Tensor,
+    full: torch.Tensor,
+    local: bool,
+    window: int,
+    null_z: float = NULL_Z,
 ) -> torch.Tensor:
     """Cross-validated positive-part factor ``clamp((C - z sd0(C)) / E, 0, 1)`` with ``C`` the
     cross energy of the two halves, ``E`` the energy of ``full`` and ``sd0(C)`` the standard
@@ -311,7 +332,7 @@ def _factor(
         cross, energy, null = (_box_sum(t, window) for t in (cross, energy, null))
     else:
         cross, energy, null = (t.sum(-1, keepdim=True) for t in (cross, energy, null))
-    signal = cross - K.DESTRIPE_NULL_Z * torch.sqrt(null)
+    signal = cross - null_z * torch.sqrt(null)
     return torch.where(energy > 0, signal / energy.clamp_min(1e-300), 0.0).clamp(0.0, 1.0)
 
 
