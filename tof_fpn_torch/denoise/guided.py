@@ -42,9 +42,17 @@ from ._common import (
     prepare,
     restore_invalid,
 )
-from ._levels import blend, check_levels, levels
+from ._levels import LEVEL_RATIO, MAX_LEVELS, blend, check_levels, levels
 
-__all__ = ["Guided", "guided"]
+__all__ = ["GUIDED_COLOR", "GUIDED_GUIDE", "GUIDED_KERNEL_SIZE", "Guided", "guided"]
+
+# Defaults of guided and Guided (written once; see the docstrings)
+#: window side ``kernel_size`` (odd)
+GUIDED_KERNEL_SIZE: int = 9
+#: ``eps = (color * sigma(p))^2`` (``color``)
+GUIDED_COLOR: float = 2.0
+#: the guide (``guide``: ``'depth'``, self-guided, or ``'amplitude'``)
+GUIDED_GUIDE: str = "depth"
 
 
 def _check(kernel_size: int, color: float, eps: float | None, guide: str) -> None:
@@ -64,14 +72,14 @@ def guided(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    kernel_size: int = 9,
-    color: float = 2.0,
+    kernel_size: int = GUIDED_KERNEL_SIZE,
+    color: float = GUIDED_COLOR,
     eps: float | None = None,
-    guide: str = "depth",
+    guide: str = GUIDED_GUIDE,
     k: float | None = None,
     signed: bool = False,
-    ratio: float = 1.25,
-    max_levels: int = 12,
+    ratio: float = LEVEL_RATIO,
+    max_levels: int = MAX_LEVELS,
 ) -> torch.Tensor:
     r"""Guided filter of (B, C, H, W) depth (kornia's, with holes and a noise-following ``eps``).
 
@@ -142,14 +150,14 @@ class Guided(nn.Module):
 
     def __init__(
         self,
-        kernel_size: int = 9,
-        color: float = 2.0,
+        kernel_size: int = GUIDED_KERNEL_SIZE,
+        color: float = GUIDED_COLOR,
         eps: float | None = None,
-        guide: str = "depth",
+        guide: str = GUIDED_GUIDE,
         k: float | None = None,
         signed: bool = False,
-        ratio: float = 1.25,
-        max_levels: int = 12,
+        ratio: float = LEVEL_RATIO,
+        max_levels: int = MAX_LEVELS,
     ) -> None:
         super().__init__()
         _check(kernel_size, color, eps, guide)

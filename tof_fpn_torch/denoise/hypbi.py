@@ -40,7 +40,30 @@ from torch import nn
 from ..runtime.noise import hh_kernel, wavelet_sigma
 from ._common import as_sigma, check_k, noise_map, prepare, restore_invalid
 
-__all__ = ["HypothesisBilateral", "hypothesis_bilateral"]
+__all__ = [
+    "HYPBI_COLOR",
+    "HYPBI_HYPOTHESES",
+    "HYPBI_ITERATIONS",
+    "HYPBI_KERNEL_SIZE",
+    "HYPBI_SIGMA_SPACE",
+    "HYPBI_TRUNC",
+    "HypothesisBilateral",
+    "hypothesis_bilateral",
+]
+
+# Defaults of hypothesis_bilateral and HypothesisBilateral (written once; see the docstrings)
+#: hypotheses ``L`` per pixel (``hypotheses``; odd keeps the current depth one)
+HYPBI_HYPOTHESES: int = 13
+#: bilateral window side ``kernel_size``
+HYPBI_KERNEL_SIZE: int = 7
+#: spatial standard deviation ``sigma_space`` (pixels)
+HYPBI_SIGMA_SPACE: float = 2.0
+#: range sigma in units of the guide's noise (``color``)
+HYPBI_COLOR: float = 2.0
+#: cost truncation and hypothesis half-range in noise standard deviations (``trunc``)
+HYPBI_TRUNC: float = 3.0
+#: cost-volume passes (``iterations``)
+HYPBI_ITERATIONS: int = 1
 
 
 def _check(
@@ -128,13 +151,13 @@ def hypothesis_bilateral(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    hypotheses: int = 13,
-    kernel_size: int = 7,
-    sigma_space: float = 2.0,
-    color: float = 2.0,
+    hypotheses: int = HYPBI_HYPOTHESES,
+    kernel_size: int = HYPBI_KERNEL_SIZE,
+    sigma_space: float = HYPBI_SIGMA_SPACE,
+    color: float = HYPBI_COLOR,
     sigma_color: float | None = None,
-    trunc: float = 3.0,
-    iterations: int = 1,
+    trunc: float = HYPBI_TRUNC,
+    iterations: int = HYPBI_ITERATIONS,
     k: float | None = None,
     signed: bool = False,
 ) -> torch.Tensor:
@@ -236,13 +259,13 @@ class HypothesisBilateral(nn.Module):
 
     def __init__(
         self,
-        hypotheses: int = 13,
-        kernel_size: int = 7,
-        sigma_space: float = 2.0,
-        color: float = 2.0,
+        hypotheses: int = HYPBI_HYPOTHESES,
+        kernel_size: int = HYPBI_KERNEL_SIZE,
+        sigma_space: float = HYPBI_SIGMA_SPACE,
+        color: float = HYPBI_COLOR,
         sigma_color: float | None = None,
-        trunc: float = 3.0,
-        iterations: int = 1,
+        trunc: float = HYPBI_TRUNC,
+        iterations: int = HYPBI_ITERATIONS,
         k: float | None = None,
         signed: bool = False,
     ) -> None:

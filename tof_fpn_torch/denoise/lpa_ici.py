@@ -36,7 +36,25 @@ from torch import nn
 from ..runtime.noise import hh_kernel
 from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
 
-__all__ = ["LPAICI", "lpa_ici", "lpa_kernels"]
+__all__ = [
+    "LPAICI",
+    "LPA_DIRECTIONS",
+    "LPA_GAMMA",
+    "LPA_ORDER",
+    "LPA_SCALES",
+    "lpa_ici",
+    "lpa_kernels",
+]
+
+# Defaults of lpa_ici and LPAICI (written once; see the docstrings)
+#: kernel directions (``directions``)
+LPA_DIRECTIONS: int = 8
+#: increasing scales ``h`` (``scales``): sectors of radius ``h - 1`` pixels
+LPA_SCALES: tuple[int, ...] = (1, 2, 3, 5, 7, 11)
+#: LPA order along the direction (``order``, 0 or 1)
+LPA_ORDER: int = 0
+#: ICI threshold ``gamma`` (confidence intervals of ``gamma`` standard deviations)
+LPA_GAMMA: float = 1.5
 
 
 def lpa_kernels(directions: int, scales: list[int], order: int) -> torch.Tensor:
@@ -129,10 +147,10 @@ def lpa_ici(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    directions: int = 8,
-    scales: tuple[int, ...] = (1, 2, 3, 5, 7, 11),
-    order: int = 0,
-    gamma: float = 1.5,
+    directions: int = LPA_DIRECTIONS,
+    scales: tuple[int, ...] = LPA_SCALES,
+    order: int = LPA_ORDER,
+    gamma: float = LPA_GAMMA,
     k: float | None = None,
     signed: bool = False,
 ) -> torch.Tensor:
@@ -223,10 +241,10 @@ class LPAICI(nn.Module):
 
     def __init__(
         self,
-        directions: int = 8,
-        scales: tuple[int, ...] = (1, 2, 3, 5, 7, 11),
-        order: int = 0,
-        gamma: float = 1.5,
+        directions: int = LPA_DIRECTIONS,
+        scales: tuple[int, ...] = LPA_SCALES,
+        order: int = LPA_ORDER,
+        gamma: float = LPA_GAMMA,
         k: float | None = None,
         signed: bool = False,
     ) -> None:

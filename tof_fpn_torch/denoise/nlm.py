@@ -58,7 +58,24 @@ from ..runtime.validity import valid_mask
 from ._common import amplitude_floor, as_sigma, check_sigma_tensor
 from .nlm_core import nlm_core, patch_taps
 
-__all__ = ["NonLocalMeans", "non_local_means"]
+__all__ = [
+    "NLM_H",
+    "NLM_KERNEL",
+    "NLM_PATCH_DISTANCE",
+    "NLM_PATCH_SIZE",
+    "NonLocalMeans",
+    "non_local_means",
+]
+
+# Defaults of non_local_means and NonLocalMeans (written once; see the docstrings)
+#: odd patch side ``patch_size``
+NLM_PATCH_SIZE: int = 7
+#: search radius ``patch_distance``
+NLM_PATCH_DISTANCE: int = 10
+#: filtering parameter ``h`` relative to the noise level (skimage's recommendation for box NLM)
+NLM_H: float = 0.8
+#: patch weighting ``kernel``
+NLM_KERNEL: str = "box"
 
 
 def _check_params(
@@ -81,12 +98,12 @@ def non_local_means(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    patch_size: int = 7,
-    patch_distance: int = 10,
-    h: float = 0.8,
+    patch_size: int = NLM_PATCH_SIZE,
+    patch_distance: int = NLM_PATCH_DISTANCE,
+    h: float = NLM_H,
     k: float | None = None,
     signed: bool = False,
-    kernel: str = "box",
+    kernel: str = NLM_KERNEL,
 ) -> torch.Tensor:
     r"""Non-local means denoising of a batch of depth maps (Buades et al., CVPR 2005).
 
@@ -280,12 +297,12 @@ class NonLocalMeans(nn.Module):
 
     def __init__(
         self,
-        patch_size: int = 7,
-        patch_distance: int = 10,
-        h: float = 0.8,
+        patch_size: int = NLM_PATCH_SIZE,
+        patch_distance: int = NLM_PATCH_DISTANCE,
+        h: float = NLM_H,
         k: float | None = None,
         signed: bool = False,
-        kernel: str = "box",
+        kernel: str = NLM_KERNEL,
     ) -> None:
         super().__init__()
         for name, v in (("patch_size", patch_size), ("patch_distance", patch_distance)):
