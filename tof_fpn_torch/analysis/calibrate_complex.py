@@ -36,20 +36,18 @@ the component of an offset along the phasor of a column that has one phase in ev
 not move that column's depth); a vertical amplitude texture of dark pixels in the same columns of
 every frame.
 
-File (:meth:`ComplexPattern.save`): an uncompressed ``.npz`` that ``numpy.load(path)`` reads without
-pickle: float64 ``column_offset_re``, ``column_offset_im`` (W,), ``row_offset_re``,
-``row_offset_im`` (H,) (zeros when not calibrated), ``column_pixels`` (W,) (difference pairs used per
-column) and ``meta_json`` (uint8 UTF-8 JSON: ``format``, ``modulation_frequency_hz``, ``frames``,
-``width``, ``amplitude_cap``, ``texture_k``, ``has_rows``, ``noise_sigma``, ``shrink_factor``).
+File: :meth:`ComplexPattern.to_arrays` / :meth:`ComplexPattern.from_arrays` convert the pattern
+to and from plain tensors (``column_offset_re``, ``column_offset_im``, ``row_offset_re``,
+``row_offset_im``, ``column_pixels``) and JSON-able fields; the file layer stores them
+(:mod:`tof_fpn_torch.io.patterns`, an ``.npz`` that ``numpy.load`` reads) and
+:func:`tof_fpn_torch.clean.pattern.save_pattern` / :func:`~tof_fpn_torch.clean.pattern.read_pattern`
+join the two.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import zipfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 
@@ -59,7 +57,6 @@ from ..runtime._phasor import metres_per_radian, phasor
 from ..runtime.complex_pattern import ComplexPatternCorrection
 from ..runtime.noise import clipped_rms_scale, scale_moment
 from ..runtime.validity import valid_mask
-from .calibrate import _npy, _npy_bytes, _read_npy
 
 __all__ = [
     "AMPLITUDE_CAP",
@@ -69,8 +66,6 @@ __all__ = [
     "ComplexPattern",
     "calibrate_complex_pattern",
 ]
-
-_FORMAT = "tof_fpn_torch.complex_pattern/1"
 
 #: Width (columns) of the high-pass of the calibrated profile (at most a quarter of the line is
 #: used): wider than the single frame's ``DESTRIPE_WIDTH``, as T frames average the scene's slow
@@ -136,13 +131,14 @@ class ComplexPattern:
             wrap=wrap,
         )
 
-    def save(self, path: str | Path) -> Path:
-        """Write the ``.npz`` described in the module docstring (parent directories created)."""
+    def to_arrays(self) -> tuple[dict[str, torch.Tensor], dict]:
+        """``(arrays, meta)``: the pattern as float64 tensors (rows zeros when not calibrated)
+        and its other fields as JSON-able values, what
+        :func:`tof_fpn_torch.io.patterns.write_pattern_file` stores (module docstring)."""
         w = self.column_offset_re.numel()
         h = max(self.height, 0)
         has_rows = self.row_offset_re is not None
         meta = {
-            "format": _FORMAT,
             "modulation_frequency_hz": float(self.modulation_frequency_hz),
             "frames": int(self.frames),
             "height": int(self.height),
@@ -161,26 +157,12 @@ class ComplexPattern:
             "row_offset_im": self.row_offset_im if has_rows else zeros,
             "column_pixels": torch.zeros(w) if self.column_pixels is None else self.column_pixels,
         }
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as z:
-            for name, t in arrays.items():
-                z.writestr(f"{name}.npy", _npy(t.detach().double().cpu()))
-            z.writestr("meta_json.npy", _npy_bytes(json.dumps(meta).encode()))
-        return path
+        return {k: t.detach().double().cpu() for k, t in arrays.items()}, meta
 
     @classmethod
-    def load(cls, path: str | Path) -> ComplexPattern:
-        """Read a file written by :meth:`save`."""
-        with zipfile.ZipFile(Path(path)) as z:
-            arrays = {n[:-4]: _read_npy(z.read(n)) for n in z.namelist() if n.endswith(".npy")}
-        missing = {"column_offset_re", "column_offset_im", "row_offset_re", "row_offset_im"}
-        missing = (missing | {"meta_json"}) - set(arrays)
-        if missing:
-            raise ValueError(f"{path} is not a complex-pattern file: missing {sorted(missing)}")
-        meta = json.loads(bytes(arrays["meta_json"].to(torch.uint8).tolist()).decode())
-        if meta.get("format") != _FORMAT:
-            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {_FORMAT!r}")
+    def from_arrays(cls, arrays: dict[str, torch.Tensor], meta: dict) -> ComplexPattern:
+        """The pattern of :meth:`to_arrays`' ``(arrays, meta)`` (as
+        :func:`tof_fpn_torch.io.patterns.read_pattern_file` returns them)."""
         rows = meta["has_rows"]
         return cls(
             column_offset_re=arrays["column_offset_re"],
