@@ -12,6 +12,8 @@ Layers (docs/architecture.md), each a subpackage that may import only the ones b
 - :mod:`.build` -- run-time modules from a design or from data (:func:`suppression_from_design`);
 - :mod:`.io` -- the file layer: camera files, the recording / scene formats, :class:`FrameDataset`;
 - :mod:`.clean` -- ``tof-fpn clean``: the pipeline over files, resumable, local or Ray;
+- :mod:`.learn` -- trainable front ends and whole learned models;
+- :mod:`.diagnosis` -- ``tof-fpn diagnose``: the simulator fitted to a recording;
 - :mod:`.experiments`, :mod:`.export`, :mod:`.cli` -- the paper's experiments, export, ``tof-fpn``.
 
 The names below are loaded on first use, so ``import tof_fpn_torch.runtime`` loads torch only.
@@ -72,9 +74,11 @@ _SUBPACKAGES = (
     "constants",
     "denoise",
     "design",
+    "diagnosis",
     "experiments",
     "export",
     "io",
+    "learn",
     "runtime",
     "sim",
 )
