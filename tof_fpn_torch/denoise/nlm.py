@@ -196,15 +196,34 @@ def _non_local_means(
     all_valid = bool(valid.all())
     x = torch.where(valid, x, torch.zeros_like(x))
     wkernel = wavelet.to(device=x.device, dtype=work_dtype)
-    valid_c = valid.expand(B, C, H, W)
+    half_var, sig_img = _noise(x, valid, amp, amplitude is not None, sigma, k, wkernel)
+    scale = _input_scale(x, half_var, sig_img, all_valid, patch_size, h)
+    out = _chunks(x, valid, all_valid, scale, half_var, patch_size, patch_distance, h, kernel)
+    out = torch.where(valid, out, depth.detach().to(work_dtype))
+    return out.to(depth.dtype)
 
+
+def _noise(
+    x: torch.Tensor,
+    valid: torch.Tensor,
+    amp: torch.Tensor,
+    has_amp: bool,
+    sigma: float | torch.Tensor | None,
+    k: float | None,
+    wkernel: torch.Tensor,
+) -> tuple[torch.Tensor | None, torch.Tensor]:
+    """``(half_var, sig_img)``: the noise map's ``sigma^2 / 2`` (B, 1, H, W) where the noise
+    varies per pixel (``k / A``, or a given map), else None and the per-image level (B, 1, 1, 1)
+    (estimated, or given); see the module docstring."""
+    B, C, H, W = x.shape
+    valid_c = valid.expand(B, C, H, W)
     half_var: torch.Tensor | None = None
-    sig_img = torch.zeros(B, 1, 1, 1, dtype=work_dtype, device=x.device)
-    if amplitude is not None and sigma is None:
+    sig_img = torch.zeros(B, 1, 1, 1, dtype=x.dtype, device=x.device)
+    if has_amp and sigma is None:
         if k is None:
             kk = wavelet_noise_k(x, amp, valid_c, wkernel).mean(dim=1)
         else:
-            kk = torch.full([B], k, dtype=work_dtype, device=x.device)
+            kk = torch.full([B], k, dtype=x.dtype, device=x.device)
         safe = torch.where(valid, amp.clamp_min(amplitude_floor(amp, valid)), torch.ones_like(amp))
         sig_map = kk.view(B, 1, 1, 1) / safe
         half_var = torch.where(valid, 0.5 * sig_map * sig_map, torch.zeros_like(sig_map))
@@ -213,10 +232,10 @@ def _non_local_means(
     elif isinstance(sigma, float):
         if not (sigma >= 0.0 and sigma < float("inf")):
             raise ValueError(f"sigma must be a finite number >= 0, got {sigma}")
-        sig_img = torch.full([B, 1, 1, 1], sigma, dtype=work_dtype, device=x.device)
+        sig_img = torch.full([B, 1, 1, 1], sigma, dtype=x.dtype, device=x.device)
     else:
         check_sigma_tensor(sigma, B, H, W)
-        sg = sigma.detach().to(device=x.device, dtype=work_dtype)
+        sg = sigma.detach().to(device=x.device, dtype=x.dtype)
         if sg.dim() == 4 and (sg.shape[2] != 1 or sg.shape[3] != 1):
             sg = sg.expand(B, 1, H, W)
             bad = valid & ~(torch.isfinite(sg) & (sg >= 0))
@@ -232,22 +251,49 @@ def _non_local_means(
             if not bool((torch.isfinite(sg) & (sg >= 0)).all()):
                 raise ValueError(f"sigma must be finite and >= 0, got minimum {float(sg.min())}")
             sig_img = sg
+    return half_var, sig_img
 
-    s = patch_size
-    d = patch_distance
+
+def _input_scale(
+    x: torch.Tensor,
+    half_var: torch.Tensor | None,
+    sig_img: torch.Tensor,
+    all_valid: bool,
+    s: int,
+    h: float,
+) -> torch.Tensor:
+    """(B, 1, 1, 1) ``sqrt(log2 e) / (h sigma sqrt(C))`` (times ``1 / s`` without holes), the
+    factor :func:`~tof_fpn_torch.denoise.nlm_core.nlm_core` folds into its input (without the
+    ``1 / sigma`` where a noise map sets the weights)."""
+    B, C = x.shape[0], x.shape[1]
     inv_s = 1.0 if not all_valid else 1.0 / s
     if half_var is None:
         # a zero noise level keeps only identical patches; floor it to stay finite
         amax = x.abs().amax(dim=(1, 2, 3)).view(B, 1, 1, 1)
         sig_img = torch.maximum(sig_img, 1e-7 * amax + 1e-30)
-        scale = math.sqrt(K.LOG2_E) * inv_s / (h * math.sqrt(C)) / sig_img
-    else:
-        scale = torch.full(
-            [B, 1, 1, 1],
-            math.sqrt(K.LOG2_E) * inv_s / (h * math.sqrt(C)),
-            dtype=work_dtype,
-            device=x.device,
-        )
+        return math.sqrt(K.LOG2_E) * inv_s / (h * math.sqrt(C)) / sig_img
+    return torch.full(
+        [B, 1, 1, 1],
+        math.sqrt(K.LOG2_E) * inv_s / (h * math.sqrt(C)),
+        dtype=x.dtype,
+        device=x.device,
+    )
+
+
+def _chunks(
+    x: torch.Tensor,
+    valid: torch.Tensor,
+    all_valid: bool,
+    scale: torch.Tensor,
+    half_var: torch.Tensor | None,
+    s: int,
+    d: int,
+    h: float,
+    kernel: str,
+) -> torch.Tensor:
+    """:func:`~tof_fpn_torch.denoise.nlm_core.nlm_core` over chunks of the batch (at most ~2M
+    padded values each)."""
+    B, C, H, W = x.shape
     taps = patch_taps(s, kernel)
     per_image = C * (H + 2 * d + s) * (W + 2 * d + s)
     chunk = max(1, 2097152 // per_image)
@@ -256,14 +302,12 @@ def _non_local_means(
         b1 = min(B, b0 + chunk)
         vmask: torch.Tensor | None = None
         if not all_valid:
-            vmask = valid[b0:b1].to(work_dtype)
+            vmask = valid[b0:b1].to(x.dtype)
         hv: torch.Tensor | None = None
         if half_var is not None:
             hv = half_var[b0:b1]
         outs.append(nlm_core(x[b0:b1], vmask, scale[b0:b1], hv, s, d, h, taps))
-    out = torch.cat(outs, 0)
-    out = torch.where(valid, out, depth.detach().to(work_dtype))
-    return out.to(depth.dtype)
+    return torch.cat(outs, 0)
 
 
 class NonLocalMeans(nn.Module):
