@@ -21,7 +21,8 @@ from tof_fpn_torch.io.camera_files import (
     vendor_partner,
 )
 from tof_fpn_torch.io.captures import ADI_INTERLEAVED_DTYPE
-from tof_fpn_torch.io.stored import encode_depth, frame_set_tensors, read_frame_sets, write_like
+from tof_fpn_torch.io.encode import encode_depth
+from tof_fpn_torch.io.stored import frame_set_tensors, read_frame_sets, write_like
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 
