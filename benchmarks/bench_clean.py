@@ -38,7 +38,7 @@ import torch
 
 from tof_fpn_torch.build import suppression_from_design
 from tof_fpn_torch.clean import CleanConfig, clean
-from tof_fpn_torch.constants import CLEAN_BATCH
+from tof_fpn_torch.clean.config import BATCH as CLEAN_BATCH
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -21,6 +21,7 @@ from tof_fpn_torch.clean import (
     load_config,
     register_denoiser,
 )
+from tof_fpn_torch.clean.config import BATCH
 from tof_fpn_torch.cli import build_parser
 from tof_fpn_torch.cli.clean import config_from_args
 from tof_fpn_torch.denoise import NonLocalMeans
@@ -53,7 +54,7 @@ def test_defaults_are_the_package_defaults():
     cfg = CleanConfig()
     assert cfg.stage == "auto" and cfg.rounding == "dither" and cfg.camera is None
     assert (cfg.notch, cfg.fusion, cfg.destripe, cfg.denoise) == ("data", "data", "auto", "none")
-    assert cfg.order == K.DEFAULT_ORDER and cfg.batch == K.CLEAN_BATCH
+    assert cfg.order == K.DEFAULT_ORDER and cfg.batch == BATCH
     assert CleanConfig(notch="off").fusion == "off"
     paper = CleanConfig(stage="paper")
     assert (paper.notch, paper.fusion, paper.destripe, paper.camera) == (

@@ -77,3 +77,36 @@ def test_cli_clean_with_a_registry_denoiser(tmp_path, capsys, name):
         assert np.array_equal(np.isnan(d_in), np.isnan(d_out))
         assert not np.array_equal(d_in, d_out, equal_nan=True)
     capsys.readouterr()
+
+
+def test_one_registry_for_clean_and_denoise():
+    """``tof-fpn clean``'s registry is the denoise package's: a name registered through either is
+    built by both, with the same check of its options."""
+    from tof_fpn_torch.clean import register_denoiser
+
+    assert DENOISERS is denoise.DENOISERS and register_denoiser is denoise.register
+
+    class Scale(torch.nn.Module):
+        def __init__(self, factor: float = 0.5):
+            super().__init__()
+            self.factor = factor
+
+        def forward(self, depth, amplitude=None):
+            return depth * self.factor
+
+    register_denoiser("scale_it", Scale)
+    try:
+        assert "scale_it" in denoise.names() and denoise.get("scale_it", factor=3.0).factor == 3.0
+        pipe = build_pipeline(
+            CleanConfig(stage="paper", notch="off", denoise="scale_it", denoise_options={})
+        )
+        assert isinstance(pipe.denoiser, Scale) and not denoise.scriptable("scale_it")
+        with pytest.raises(
+            ValueError, match=r"has no parameter\(s\) \['size'\]; allowed: \['factor'\]"
+        ):
+            denoise.get("scale_it", size=2)
+    finally:
+        denoise.DENOISERS.pop("scale_it")
+    assert "scale_it" not in DENOISERS
+    with pytest.raises(ValueError, match="unknown denoiser 'scale_it'"):
+        denoise.get("scale_it")

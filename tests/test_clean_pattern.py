@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tof_fpn_torch.analysis import FixedPattern
+from tof_fpn_torch.clean.pattern import read_pattern
 from tof_fpn_torch.cli import main
 
 
@@ -41,7 +41,7 @@ def test_calibrate_recovers_the_pattern_and_clean_removes_it(walls, capsys):
     root, col = walls
     assert main(["calibrate", str(root / "walls"), str(root / "p.npz")]) == 0
     assert "calibrated 80 x 96 from 6 frame(s)" in capsys.readouterr().out
-    pattern = FixedPattern.load(root / "p.npz")
+    pattern = read_pattern(root / "p.npz")
     est = pattern.column_offset.numpy() * 1e3  # metres -> mm
     # the high-pass part the calibration can identify (slower offsets are the scene's shape)
     fast = col - np.convolve(col, np.ones(31) / 31, mode="same")

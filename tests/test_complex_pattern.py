@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from tof_fpn_torch import constants as K
-from tof_fpn_torch.analysis import ComplexPattern, calibrate_complex_pattern
+from tof_fpn_torch.analysis import calibrate_complex_pattern
 from tof_fpn_torch.analysis.metrics import psnr
+from tof_fpn_torch.clean.pattern import read_pattern, save_pattern
 from tof_fpn_torch.export import export_onnx, export_torchscript
 from tof_fpn_torch.runtime import ComplexPatternCorrection
 from tof_fpn_torch.runtime._destripe_core import highpass
@@ -207,8 +208,8 @@ def test_onnx_export_matches_eager_and_keeps_invalid_invalid(tmp_path, calibrate
 def test_save_load_roundtrip_and_numpy_reads_it(tmp_path, pattern):
     d, a = _measure(*_scenes(8, seed=1), pattern, seed=2)
     cp = calibrate_complex_pattern(d, a, F0, rows=True)
-    path = cp.save(tmp_path / "sub" / "pattern.npz")
-    back = ComplexPattern.load(path)
+    path = save_pattern(cp, tmp_path / "sub" / "pattern.npz")
+    back = read_pattern(path)
     for name in ("column_offset_re", "column_offset_im", "row_offset_re", "row_offset_im"):
         assert torch.equal(getattr(back, name), getattr(cp, name)), name
     assert torch.equal(back.column_pixels, cp.column_pixels)
@@ -225,12 +226,12 @@ def test_save_load_roundtrip_and_numpy_reads_it(tmp_path, pattern):
     assert '"has_rows": true' in meta and '"format": "tof_fpn_torch.complex_pattern/1"' in meta
     # without rows: the file holds zeros and says so
     cp2 = calibrate_complex_pattern(d, a, F0)
-    back2 = ComplexPattern.load(cp2.save(tmp_path / "cols.npz"))
+    back2 = read_pattern(save_pattern(cp2, tmp_path / "cols.npz"))
     assert back2.row_offset_re is None and back2.module().height == -1
     bad = tmp_path / "bad.npz"
     np.savez(bad, column_offset_re=np.zeros(3))
     with pytest.raises(ValueError, match="not a complex-pattern file: missing"):
-        ComplexPattern.load(bad)
+        read_pattern(bad)
 
 
 def test_errors():

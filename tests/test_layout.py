@@ -3,7 +3,8 @@
 - which package may import which (the run-time layers import torch, kornia, the standard library
   and the constants only; nothing imports upward);
 - importing the run-time package loads no SciPy, matplotlib or offline layer;
-- no file of the package over 400 lines;
+- no file of the package over 400 lines, no function over 80 (unless its docstring says why it
+  "cannot be split");
 - no number of the paper written anywhere but ``tof_fpn_torch/constants.py``.
 """
 
@@ -275,3 +276,44 @@ def test_the_literal_scan_sees_a_copy(tmp_path):
     assert [v for v, *_ in found].count(7.5) == 1  # the docstring's 7.5 is not code
     assert any(math.isclose(v, 2 * math.pi / 3) for v, *_ in found)
     assert sorted(d for v, _, _, d in found if v == 0.14) == [False, True]  # body / default
+
+
+#: functions over 80 lines in files that other people were changing when the check was added (the
+#: diagnosis, the experiments, ``tof-fpn clean``'s run and ``tof-fpn reproduce``): listed (the
+#: check is an expected failure naming them), not failed, until those changes land; remove an
+#: entry once its function is split
+MAX_FUNCTION_LINES = 80
+
+
+def _long_functions(path: Path, root: Path = PACKAGE) -> dict[str, int]:
+    """``"file::function" -> lines`` for the functions (and methods) of ``path`` longer than
+    :data:`MAX_FUNCTION_LINES` (decorators to the last line) whose docstring does not say why
+    they "cannot be split"."""
+    tree = ast.parse(path.read_text())
+    out = {}
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            first = min([node.lineno, *(d.lineno for d in node.decorator_list)])
+            n = node.end_lineno - first + 1
+            doc = ast.get_docstring(node) or ""
+            if n > MAX_FUNCTION_LINES and "cannot be split" not in " ".join(doc.split()):
+                out[f"{path.relative_to(root).as_posix()}::{node.name}"] = n
+    return out
+
+
+def test_no_function_over_80_lines():
+    long: dict[str, int] = {}
+    for path in _sources():
+        long.update(_long_functions(path))
+    new = sorted(f"{k} ({v} lines)" for k, v in long.items())
+    assert not new, "split these functions (or say why they cannot be split):\n" + "\n".join(new)
+
+
+def test_the_function_length_check_sees_one(tmp_path):
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES))
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        f'def long():\n{body}\n\ndef kernel():\n    """A TorchScript kernel: it cannot\n'
+        f'    be split (one fused loop)."""\n{body}\n\ndef short():\n    return 1\n'
+    )
+    assert _long_functions(probe, tmp_path) == {"probe.py::long": MAX_FUNCTION_LINES + 1}

@@ -1,10 +1,13 @@
-"""The paper's numbers and the package defaults, each written once (standard library only).
+"""The paper's numbers and the defaults shared across layers, each written once (standard library
+only).
 
 Georgiev, Bregovic, Gotchev, "Fixed-pattern noise suppression in low-sensing environment of
 Time-of-Flight devices", IEEE SAS 2015 (DOI 10.1109/SAS.2015.7133633). Every module reads these
-names; ``tests/test_layout.py`` fails if one of the values is written as a literal anywhere else in
-the package. TorchScript reads them as module attributes (``constants.D_MAX``), which it folds into
-constants; it cannot read bare module-level globals.
+names; ``tests/test_layout.py`` fails if one of the paper's values is written as a literal anywhere
+else in the package. A setting that one module uses lives beside its code, as a documented
+module-level default (e.g. ``FALSE_ALARM`` of :mod:`tof_fpn_torch.runtime.gate`). TorchScript reads
+these as module attributes (``constants.D_MAX``), which it folds into constants; it cannot read
+bare module-level globals (run-time modules pass their own settings as parameter defaults).
 """
 
 from __future__ import annotations
@@ -52,22 +55,11 @@ FUSION_LOW_RELATIVE_NOISE: float = 0.04
 FUSION_HIGH_RELATIVE_NOISE: float = 0.008
 
 # --- the stripe gate of the FPN stage (runtime/gate.py; beyond the paper) -----------------------
-#: False-alarm probability of the gate's line test, per notch frequency and image.
-GATE_FALSE_ALARM: float = 1e-3
-#: Reference frequencies the line test compares the notch frequency's power with.
-GATE_REFERENCES: int = 8
 #: Smallest stripe amplitude, in units of the per-pixel variation the notch sees besides stripes
 #: (noise, scene detail), that opens the gate (fully at 2x): a stripe whose power is under 1 % of
 #: that is not worth what a notch does to the scene. (The real ADI wall's 7 um row stripe at pi is
 #: at ~0.03; the paper's synthetic FPN at ~0.3.)
 GATE_MIN_STRIPE: float = 0.1
-#: Side of the window (pixels) of the local mean of the squared finest diagonal wavelet
-#: coefficients that caps the gate's per-pixel noise power (runtime/gate.py, noise_power).
-GATE_NOISE_WINDOW: int = 3
-#: The stripe gate closes where the stage's estimated benefit is at most this share of its
-#: estimated cost (and opens fully where the benefit exceeds the cost): runtime/gate.py,
-#: risk_shrinkage.
-GATE_RISK_FLOOR: float = 0.5
 
 # --- stripe detection (analysis/stripes.py) ---------------------------------------------------
 #: Largest false-alarm probability of a reported periodic stripe (whole searched band).
@@ -139,53 +131,25 @@ DESTRIPE_WIDTH: int = 31
 #: are scene structure (edges, bars, clutter), not stripes: the pilot replaces them in the means.
 DESTRIPE_CLIP: float = 3.0
 #: A column step (mean difference between neighbouring columns) further than this many robust
-#: sigmas (MAD) from the median step is a scene edge that most rows share, not a stripe: dropped ...
+#: sigmas (MAD) from the median step is a scene edge that most rows share, not a stripe: dropped
+#: (unless too many are: ``MAX_EDGE_SHARE`` of runtime/_destripe_core.py).
 DESTRIPE_STEP_CLIP: float = 5.0
-#: ... unless more than this share of the columns would be dropped: then they are a mode of the
-#: steps (periodic stripes such as the paper's at pi make them bimodal), not rare edges.
-DESTRIPE_MAX_EDGE_SHARE: float = 0.25
-#: The cross-validated shrinkage keeps a profile band only as far as the energy common to the top
-#: and the bottom half exceeds this many of its standard deviations without stripes (2.5: the
-#: largest value that keeps >= 10 dB on the real ADI wall; stripe-free scenes then change by
-#: < 0.1 dB, docs/destripe.md).
-DESTRIPE_NULL_Z: float = 2.5
 #: Rows of the strided subsample (half in each half of the frame) on which the robust scale and
 #: the pilot are computed.
 DESTRIPE_PILOT_ROWS: int = 32
 #: Window (columns) of ``shrink="local"``: the cross-validated factor is computed per window.
 DESTRIPE_LOCAL_WIDTH: int = 128
-#: :func:`~tof_fpn_torch.analysis.calibrate_fixed_pattern` calibrates per-pixel offsets (flat
-#: field) only from at least this many frames per group: a pixel's standard error is then at most
-#: a third of one frame's noise.
-CALIBRATION_MIN_PIXEL_FRAMES: int = 9
 
-#: :func:`~tof_fpn_torch.analysis.calibrate_complex_pattern`: a pixel brighter than this multiple of
-#: its frame's median amplitude is left out of the estimate (its scene texture is strongest and a
-#: read-out offset barely moves its depth: the error is ``|o| / A``); 2: measured best of 1.5 - 3 on
-#: the raw simulator (docs/destripe.md).
-COMPLEX_CAL_AMPLITUDE_CAP: float = 2.0
-#: ... the component of a pixel's column difference along its own phasor (where amplitude texture
-#: lies) is weighted ``1 - beta``, ``beta = A^2 / (A^2 + (k sigma)^2)`` with ``sigma`` the per-channel
-#: noise of ``z`` and ``k`` this value (2 - 5 measured equally good; 10 lets the painted wall of the
-#: bright planar scene in).
-COMPLEX_CAL_TEXTURE_K: float = 3.0
-#: ... ridge (share of the pixel count) on the 2 x 2 normal equations of each column pair: a
-#: direction seen by fewer pixels than this share (a column of one phase) is left at ~0.
-COMPLEX_CAL_RIDGE: float = 0.02
-#: ... width (columns) of the high-pass of the calibrated profile (at most a quarter of the line is
-#: used): wider than the single frame's ``DESTRIPE_WIDTH``, as T frames average the scene's slow
-#: column profile down (51 against 31 on the raw simulator: +0.14 dB over the 16 calibrations of
-#: docs/destripe.md, +0.5 dB at the darkest level, -0.1 dB on the bright planar scene).
-COMPLEX_CAL_WIDTH: int = 51
-
-# --- tof-fpn clean (tof_fpn_torch.clean) -------------------------------------------------------
-#: Files per group and frames per compute batch of ``tof-fpn clean``: the batches are fixed by the
-#: sorted file list, so that a resumed run or the Ray engine computes every frame in the same batch
-#: (batched torch kernels differ in the last bits between batch sizes).
-CLEAN_BATCH: int = 8
-#: Frames (the first in file order) on which ``auto`` / ``data`` stages of ``tof-fpn clean`` are
-#: measured when the run starts.
-CLEAN_CALIBRATION_FRAMES: int = 8
+# --- the simulator's multipath (sim/optics.py; the diagnosis profiles around them) ------------
+#: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
+#: view (deg) and near-field length (m), the step (px) between its source patches, raised so that
+#: at most ``MULTIPATH_MAX_SOURCES`` are used (used by sim/optics.py alone, but 300 is also the
+#: paper's LOW_SENSING_THRESHOLD, which tests/test_layout.py flags anywhere else; the step goes
+#: with it).
+MULTIPATH_FIELD_OF_VIEW_DEG: float = 70.0
+MULTIPATH_NEAR_FIELD_M: float = 1.0
+MULTIPATH_RELAY_STEP: int = 8
+MULTIPATH_MAX_SOURCES: int = 300
 
 # --- Table II (real-case data) and its protocol (Sec. IV-A, IV-C; issue 11) --------------------
 #: Integration times of Table II's low-sensing captures, s.
@@ -204,14 +168,3 @@ PAPER_TABLE2: dict[str, tuple[tuple[float, float], ...]] = {
     "bm3d": ((24.3, 28.4), (28.8, 31.4), (32.9, 35.4)),
     "sdct": ((24.4, 26.4), (26.2, 27.9), (27.8, 28.1)),
 }
-
-# --- the simulator's diffuse interreflection (sim.Multipath, sim/relay.py) ---------------------
-# (the diagnosis's tuning numbers are in the tof_fpn_torch.diagnosis modules that use them)
-#: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
-#: view (deg), near-field length (m), the step (px) between its source patches, and how many
-#: relay matrices are kept
-MULTIPATH_FIELD_OF_VIEW_DEG: float = 70.0
-MULTIPATH_NEAR_FIELD_M: float = 1.0
-MULTIPATH_RELAY_STEP: int = 8
-MULTIPATH_MAX_SOURCES: int = 300
-RELAY_CACHE_SIZE: int = 2

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from ..constants import MAD_TO_SIGMA
+from ..runtime.noise import mad_to_sigma
 from ..runtime.validity import valid_mask
 
 __all__ = [
@@ -95,7 +95,7 @@ def quiet_mask(depth: torch.Tensor, sigmas: float = 6.0, width: int = 15) -> tor
     hp = row_highpass(depth, width, v)
     if not bool(v.any()):
         return v
-    scale = MAD_TO_SIGMA * float(hp[v].abs().median())
+    scale = float(mad_to_sigma(hp[v].abs().median().double(), 1))
     return structure_mask(depth, sigmas * scale, width) if scale > 0 else v
 
 

@@ -65,6 +65,7 @@ from .. import constants as K
 from ..runtime import FPNFilter, valid_mask
 from ..runtime._checks import check_image, check_same_shape
 from ..runtime.gate import noise_power
+from ..runtime.noise import mad_to_sigma
 
 __all__ = ["AmplitudeBins", "fit_fusion", "stripe_power_by_amplitude"]
 
@@ -227,7 +228,7 @@ def stripe_power_by_amplitude(
         change = torch.where(valid, filtered - x, 0.0)
         sigma2 = noise_power(torch.where(valid, x, 0.0), amplitude.double(), valid)
         a = amplitude.double()
-        scale = K.MAD_TO_SIGMA * float(change[valid].abs().median())
+        scale = float(mad_to_sigma(change[valid].abs().median(), 1))
         keep = valid & (change.abs() <= 4.0 * scale) if scale > 0 else valid
         keep = keep & ~_near_edges(filtered, valid, list(filter.dims), filter.taps.numel())
         other, own, side = _patterns(change, keep, list(filter.dims), notches)

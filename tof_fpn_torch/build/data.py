@@ -19,8 +19,12 @@ from ..runtime.gate import line_gate
 from .design import filter_from_design, suppression_from_design
 
 __all__ = [
+    "AUTO_DESTRIPE_MAX_ENERGY",
     "AUTO_DESTRIPE_MIN_Z",
     "AUTO_DESTRIPE_WIDTH",
+    "NOTCH_MERGE",
+    "RHO_SHARE",
+    "STRIPE_SCALE_RANGE",
     "broadband_from_data",
     "fusion_from_data",
     "fusion_from_noise",
@@ -37,6 +41,16 @@ AUTO_DESTRIPE_WIDTH = 15
 #: :func:`broadband_from_data` needs the column profiles of the frames' two halves to correlate at
 #: ``r sqrt(n) >=`` this (in null standard deviations)
 AUTO_DESTRIPE_MIN_Z = 4.0
+#: ... and to leave at most this share of the column-stripe energy away from scene structure
+AUTO_DESTRIPE_MAX_ENERGY = 0.5
+#: :func:`suppression_from_data`: detected frequencies closer than this (radians per sample)
+#: become one notch ...
+NOTCH_MERGE = 0.02
+#: ... and without a given ``rho`` the design takes ``min(DEFAULT_RHO, RHO_SHARE * max_rho)`` of
+#: the notches (a margin below the largest transition width they allow)
+RHO_SHARE = 0.9
+#: The range the gate's ``stripe_scale`` measured on calibration frames is clamped to
+STRIPE_SCALE_RANGE = (0.25, 8.0)
 
 
 def fusion_from_data(
@@ -111,7 +125,8 @@ def fusion_from_noise(
 def _stripe_scale(module: FPNSuppression, depth: torch.Tensor, amplitude: torch.Tensor) -> float:
     """The factor that makes the gate's stripe power (read off each frame's column profile) equal
     the weighted stripe power the fusion's bins measured on the same frames (see
-    :class:`~tof_fpn_torch.runtime.FPNSuppression`, ``stripe_scale``), within ``[1/4, 8]``."""
+    :class:`~tof_fpn_torch.runtime.FPNSuppression`, ``stripe_scale``), within
+    :data:`STRIPE_SCALE_RANGE`."""
     bins = None if module.fusion is None else module.fusion.bins
     filt = module.filter
     if bins is None or filt is None or not bool((bins.stripe_power > 0).any()):
@@ -126,7 +141,8 @@ def _stripe_scale(module: FPNSuppression, depth: torch.Tensor, amplitude: torch.
     measured = float((bins.pixels * module.fusion.weight(bins.amplitude) * bins.stripe_power).sum())
     if not read_total > 0:
         return 1.0
-    return min(max(measured / read_total, 0.25), 8.0)
+    lo, hi = STRIPE_SCALE_RANGE
+    return min(max(measured / read_total, lo), hi)
 
 
 def suppression_from_data(
@@ -147,7 +163,7 @@ def suppression_from_data(
     periodic components :func:`~tof_fpn_torch.analysis.estimate_stripes` reports (false-alarm
     probability ``<= false_alarm``, amplitude over its noise floor) become the notches, their
     orientations ``dim`` (both orientations share one notch set; rho defaults to
-    ``min(DEFAULT_RHO, 0.9 max_rho)``). With amplitudes the fusion is fitted to the stripes'
+    ``min(DEFAULT_RHO, RHO_SHARE max_rho)``, :data:`RHO_SHARE` 0.9). With amplitudes the fusion is fitted to the stripes'
     strength against the amplitude (:func:`fusion_from_data`; pass ``low`` / ``high`` or
     ``camera`` to choose yourself), and the gate's stripe power is calibrated on the same frames
     (``stripe_scale`` of :class:`~tof_fpn_torch.runtime.FPNSuppression`). When nothing is found
@@ -164,13 +180,13 @@ def suppression_from_data(
         module.estimate = est
         return module
     merged: list[float] = []
-    for f in sorted({c.frequency for c in est.components}):  # one notch for peaks < 0.02 rad apart
-        if merged and f - merged[-1] < 0.02:
+    for f in sorted({c.frequency for c in est.components}):  # one notch for close peaks
+        if merged and f - merged[-1] < NOTCH_MERGE:
             continue
         merged.append(f)
     dims = sorted({c.dim for c in est.components})
     if rho is None:
-        rho = min(K.DEFAULT_RHO, 0.9 * max_rho(merged))
+        rho = min(K.DEFAULT_RHO, RHO_SHARE * max_rho(merged))
     kwargs.setdefault("dim", tuple(dims) if len(dims) > 1 else dims[0])
     if amplitudes is None:
         kwargs.setdefault("adaptive", False)
@@ -225,6 +241,7 @@ def broadband_from_data(
     frames alone) must (1) move the valid pixels by an RMS of at least ``min_stripe`` times the
     frames' per-pixel noise (wavelet MAD, :func:`~tof_fpn_torch.denoise.estimate_sigma`; the floor
     of the periodic detection and the stripe gate) and (2) halve the column-stripe energy
+    (:data:`AUTO_DESTRIPE_MAX_ENERGY`)
     (:func:`~tof_fpn_torch.analysis.column_stripe_energy`, the covariance of the top and bottom
     halves' column profiles) measured away from scene structure (:func:`quiet_mask`): what it removes must be an offset of the whole column where the scene is quiet, not a
     thin object or texture the same in both halves (the destriper alone cannot tell those apart);
@@ -256,7 +273,7 @@ def broadband_from_data(
         e0 = float(energy.covariance.mean())
         e1 = float(column_stripe_energy(after, quiet).covariance.mean())
         z = float((energy.correlation * energy.columns.double().sqrt()).nan_to_num(0.0).min())
-        if e0 > 0 and e1 <= 0.5 * e0 and z >= AUTO_DESTRIPE_MIN_Z:
+        if e0 > 0 and e1 <= AUTO_DESTRIPE_MAX_ENERGY * e0 and z >= AUTO_DESTRIPE_MIN_Z:
             dims.append(d)
     if not dims:
         return None

@@ -16,6 +16,7 @@ from ..design import compensate_half_sample, design_fpn, fixed_zero_taps
 from ..runtime import AmplitudeFusion, FPNFilter, FPNSuppression, TrainableFusion, keep_zeros
 
 __all__ = [
+    "HALF_SAMPLE_MAX_EDGE",
     "MAX_RIPPLE_DB",
     "filter_from_design",
     "suppression_from_design",
@@ -26,6 +27,9 @@ __all__ = [
 #: The builders refuse designs whose passband ripple is worse than this (dB): such a "notch filter"
 #: changes the scene more than it removes stripes (e.g. 0 dB ripple with H(0) = 2 doubles depth).
 MAX_RIPPLE_DB = -20.0
+#: The half-sample interpolator of odd orders is designed up to the top passband edge, at most this
+#: fraction of pi.
+HALF_SAMPLE_MAX_EDGE = 0.95
 
 
 def _design(order, rho, notches, band_weights, compensate_delay, unit_dc, max_ripple_db):
@@ -41,9 +45,9 @@ def _design(order, rho, notches, band_weights, compensate_delay, unit_dc, max_ri
     taps = design.taps
     compensated = bool(compensate_delay) and taps.size % 2 == 0
     if compensated:
-        # the interpolator's band reaches the top passband edge (at most 0.95 pi)
+        # the interpolator's band reaches the top passband edge (at most HALF_SAMPLE_MAX_EDGE pi)
         taps = compensate_half_sample(
-            taps, band_edge=float(min(design.bands[-1, 1], 0.95 * math.pi))
+            taps, band_edge=float(min(design.bands[-1, 1], HALF_SAMPLE_MAX_EDGE * math.pi))
         )
     meta = {
         "order": design.order,
@@ -65,7 +69,9 @@ def filter_from_design(
     max_ripple_db: float | None = MAX_RIPPLE_DB,
     **kwargs,
 ) -> FPNFilter:
-    """Design taps with :func:`tof_fpn_torch.design.design_fpn` and build an :class:`FPNFilter`.
+    """Design taps with :func:`tof_fpn_torch.design.design_fpn` and build an :class:`FPNFilter`
+    (its taps are the design's, delay-compensated for odd orders: a module, not another way to
+    get taps; ``design_fpn(...).taps`` are the taps).
 
     ``compensate_delay`` (default) convolves the taps of an odd order with a half-sample
     interpolator (:func:`tof_fpn_torch.design.compensate_half_sample`), so the output stays on the

@@ -76,12 +76,22 @@ from .. import __version__, cameras
 from .. import constants as K
 
 __all__ = [
+    "BATCH",
+    "CALIBRATION_FRAMES",
     "CHOICES",
     "CleanConfig",
     "config_from_dict",
     "config_to_toml",
     "load_config",
 ]
+
+#: Files per group and frames per compute batch (``batch``): the batches are fixed by the sorted
+#: file list, so that a resumed run or the Ray engine computes every frame in the same batch
+#: (batched torch kernels differ in the last bits between batch sizes).
+BATCH: int = 8
+#: Frames (the first in file order) on which ``auto`` / ``data`` stages are measured when the run
+#: starts (``calibration_frames``).
+CALIBRATION_FRAMES: int = 8
 
 #: the allowed values of the ``[pipeline]`` keys (``denoise``: ``none`` or a registered name)
 CHOICES: dict[str, tuple[str, ...]] = {
@@ -150,9 +160,9 @@ class CleanConfig:
     camera: str | None = None
     low: float | None = None
     high: float | None = None
-    calibration_frames: int = K.CLEAN_CALIBRATION_FRAMES
+    calibration_frames: int = CALIBRATION_FRAMES
     denoise_options: dict = field(default_factory=dict)
-    batch: int = K.CLEAN_BATCH
+    batch: int = BATCH
     depth_scale: float | None = None
     height: int | None = None
     width: int | None = None

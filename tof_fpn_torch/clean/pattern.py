@@ -11,7 +11,8 @@ included), in metres; all readable frames of the first frame's size are used. Tw
   to the complex signal ``A exp(j phi)``, which enter the depth as ``1 / A``; needs the modulation
   frequency; applied as :class:`~tof_fpn_torch.runtime.ComplexPatternCorrection`.
 
-A pattern file (``.npz``) says which it is; :func:`load_pattern` returns the run-time module.
+A pattern file (``.npz``, :mod:`tof_fpn_torch.io.patterns`) says which it is: :func:`save_pattern` /
+:func:`read_pattern` write and read it, :func:`load_pattern` returns the run-time module.
 """
 
 from __future__ import annotations
@@ -27,11 +28,12 @@ from ..analysis import (
     calibrate_complex_pattern,
     calibrate_fixed_pattern,
 )
+from ..io.patterns import read_pattern_file, write_pattern_file
 from .config import CleanConfig
 from .plan import plan_jobs
 from .work import read_jobs
 
-__all__ = ["DOMAINS", "calibrate", "load_pattern", "read_frames"]
+__all__ = ["DOMAINS", "calibrate", "load_pattern", "read_frames", "read_pattern", "save_pattern"]
 
 #: the domains a pattern is calibrated in
 DOMAINS = ("depth", "complex")
@@ -85,8 +87,29 @@ def calibrate(
         pattern = calibrate_fixed_pattern(depth, amplitude, flat_field=flat_field)
     else:
         pattern = calibrate_complex_pattern(depth, amplitude, modulation_frequency_hz, rows=rows)
-    pattern.save(output)
+    save_pattern(pattern, output)
     return pattern
+
+
+def save_pattern(pattern: FixedPattern | ComplexPattern, path) -> Path:
+    """Write ``pattern`` to the file ``path`` (:mod:`tof_fpn_torch.io.patterns`; parent
+    directories are created)."""
+    kind = "complex" if isinstance(pattern, ComplexPattern) else "fixed"
+    arrays, meta = pattern.to_arrays()
+    return write_pattern_file(path, kind, arrays, meta)
+
+
+def read_pattern(path) -> FixedPattern | ComplexPattern:
+    """The pattern of a file written by :func:`save_pattern` (or :func:`calibrate`), either
+    domain; files of earlier versions read unchanged.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not a pattern file (the message says what is missing or wrong).
+    """
+    kind, arrays, meta = read_pattern_file(path)
+    cls = ComplexPattern if kind == "complex" else FixedPattern
+    return cls.from_arrays(arrays, meta)
 
 
 def load_pattern(path) -> nn.Module:
@@ -95,10 +118,8 @@ def load_pattern(path) -> nn.Module:
     if not p.is_file():
         raise ValueError(f"pattern file not found: {path}")
     try:
-        with zipfile.ZipFile(p) as z:
-            names = set(z.namelist())
+        with zipfile.ZipFile(p):
+            pass
     except zipfile.BadZipFile:
         raise ValueError(f"{path} is not a pattern file (not an .npz archive)") from None
-    if "column_offset_re.npy" in names:
-        return ComplexPattern.load(p).module()
-    return FixedPattern.load(p).module()
+    return read_pattern(p).module()

@@ -1,11 +1,11 @@
 """The torch side of ``tof-fpn clean``: the stages a :class:`CleanConfig` asks for, as one module.
 
 Order (each stage optional): the FPN stage (:class:`~tof_fpn_torch.runtime.FPNSuppression`: notch
-filter, eq. (11) fusion, stripe gate, then the broadband destriper), then a denoiser. Denoisers are
-a registry by name (:data:`DENOISERS`: every name of :func:`tof_fpn_torch.denoise.names` -- nlm,
-bm3d, sdct, hypbi, lpa-ici, bilateral, joint-bilateral, guided -- and the registry's aliases):
-:func:`register_denoiser` adds one, a factory taking keyword options and returning a module
-``(depth, amplitude) -> depth``.
+filter, eq. (11) fusion, stripe gate, then the broadband destriper), then a denoiser. Denoisers come
+from the one registry, :data:`tof_fpn_torch.denoise.DENOISERS` (re-exported here as
+:data:`DENOISERS`: nlm, bm3d, sdct, hypbi, lpa-ici, bilateral, joint-bilateral, guided, and the
+registry's aliases); :func:`register_denoiser` (:func:`tof_fpn_torch.denoise.register`) adds one,
+a factory taking keyword options and returning a module ``(depth, amplitude) -> depth``.
 
 Data-driven choices (``destripe = "auto"``, ``notch = "data"``, ``fusion = "data"``) are measured
 on calibration frames (the first frames of the input in file order, read by the caller) with the
@@ -14,7 +14,6 @@ builders of :mod:`tof_fpn_torch.build`; the measured module is then fixed for th
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -45,53 +44,30 @@ __all__ = [
     "stage_line",
 ]
 
-#: denoiser name -> factory(**options) -> module ``(depth, amplitude) -> depth``
-DENOISERS: dict[str, Callable[..., nn.Module]] = {
-    n: _denoise.module_class(n) for n in _denoise.names()
-}
-
 _DESTRIPE_DIMS = {"columns": -1, "rows": -2, "both": (-2, -1)}
 
-
-def register_denoiser(name: str, factory: Callable[..., nn.Module]) -> None:
-    """Add a denoiser under ``name`` (``denoise = "<name>"``, ``--denoise <name>``).
-
-    ``factory(**options)`` gets the ``[denoise]`` table and returns a module called as
-    ``module(depth, amplitude)`` on (B, 1, H, W) depth in metres (NaN invalid) and amplitude in
-    camera units, returning depth with invalid pixels unchanged."""
-    if not isinstance(name, str) or not name.isidentifier() or name == "none":
-        raise ValueError(f"name must be an identifier other than 'none', got {name!r}")
-    if not callable(factory):
-        raise ValueError(f"factory must be callable, got {type(factory).__name__}")
-    DENOISERS[name] = factory
+#: the denoiser registry (name -> factory(**options) -> module ``(depth, amplitude) -> depth``):
+#: :data:`tof_fpn_torch.denoise.DENOISERS` itself
+DENOISERS = _denoise.DENOISERS
+#: add a denoiser by name (``denoise = "<name>"``, ``--denoise <name>``):
+#: :func:`tof_fpn_torch.denoise.register`
+register_denoiser = _denoise.register
 
 
 def make_denoiser(name: str, options: dict) -> nn.Module | None:
-    """The denoiser ``name`` built with ``options`` (None for ``"none"``)."""
+    """The denoiser ``name`` built with ``options`` (None for ``"none"``) by
+    :func:`tof_fpn_torch.denoise.get` (names, aliases and the options' check are the registry's)."""
     if name == "none":
         if options:
             raise ValueError(f"denoise options {sorted(options)} given, but denoise = 'none'")
         return None
-    if name not in DENOISERS:  # an alias of the denoise registry (sliding_dct, LPAICI, ...)
-        try:
-            name = _denoise.canonical(name)
-        except ValueError:
-            pass
-    if name not in DENOISERS:
-        raise ValueError(f"denoise must be 'none' or one of {sorted(DENOISERS)}, got {name!r}")
-    factory = DENOISERS[name]
     try:
-        params = inspect.signature(factory).parameters
-    except (TypeError, ValueError):
-        params = {}
-    if params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
-        unknown = sorted(set(options) - set(params))
-        if unknown:
-            raise ValueError(
-                f"unknown option(s) {unknown} of denoiser {name!r}; allowed: "
-                f"{sorted(k for k in params if k != 'self')}"
-            )
-    return factory(**options)
+        key = _denoise.canonical(name)
+    except ValueError:
+        raise ValueError(
+            f"denoise must be 'none' or one of {sorted(DENOISERS)}, got {name!r}"
+        ) from None
+    return _denoise.get(key, **options)
 
 
 class CleanPipeline(nn.Module):

@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
         "rho": f.rho,
         "notches": list(f.notches),
         "dims": list(f.dims),
-        "adaptive": module.adaptive,
+        "adaptive": module.needs_amplitude,
         "fusion": None if module.fusion is None else [module.fusion.low, module.fusion.high],
         "gate": module.gate,
         "taps": int(f.taps.numel()),

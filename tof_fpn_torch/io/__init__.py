@@ -21,6 +21,8 @@ formats, their units and what each reader can and cannot do.
 - :mod:`.recording` -- the recording format (:class:`Recording`); :mod:`.scene` -- the scene
   format (:class:`SceneData`).
 - :mod:`.dataset` -- :class:`FrameDataset`, a folder of frames for a ``DataLoader``.
+- :mod:`.patterns` -- the pattern files of ``tof-fpn calibrate`` (:func:`read_pattern_file`,
+  :func:`write_pattern_file`; plain tensors, the analysis layer's patterns convert).
 """
 
 from ._common import METRES_PER_MM, FormatError
@@ -38,6 +40,7 @@ from .images import read_png, read_tiff, write_png, write_tiff
 from .matroska import read_azure_kinect_mkv
 from .numpy_files import read_npy, read_npz, write_npy, write_npz
 from .pairs import read_pair, write_pair
+from .patterns import read_pattern_file, write_pattern_file
 from .raw import read_raw, write_raw
 from .recording import (
     FORMAT_VERSION,
@@ -69,6 +72,7 @@ __all__ = [
     "read_npy",
     "read_npz",
     "read_pair",
+    "read_pattern_file",
     "read_png",
     "read_raw",
     "read_realsense_bag",
@@ -84,6 +88,7 @@ __all__ = [
     "write_npy",
     "write_npz",
     "write_pair",
+    "write_pattern_file",
     "write_png",
     "write_raw",
     "write_recording",

@@ -85,7 +85,7 @@ class FPNSuppression(Float32Stage):
     """
 
     __jit_ignored_attributes__ = ["estimate"]
-    __jit_unused_properties__ = ["design", "adaptive"]
+    __jit_unused_properties__ = ["design"]
 
     def __init__(
         self,
@@ -133,13 +133,9 @@ class FPNSuppression(Float32Stage):
         return None if self.filter is None else self.filter.design
 
     @property
-    def adaptive(self) -> bool:
-        """Whether the notch output is fused with the raw depth by amplitude (eq. 11)."""
-        return self.fusion is not None
-
-    @property
     def needs_amplitude(self) -> bool:
-        """Whether :meth:`forward` needs an amplitude."""
+        """Whether :meth:`forward` needs an amplitude: the notch output is fused with the raw
+        depth by amplitude (eq. 11; the "adaptive" stage of the paper)."""
         return self.fusion is not None
 
     def extra_repr(self) -> str:

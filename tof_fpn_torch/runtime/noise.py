@@ -1,4 +1,23 @@
-r"""Robust noise-level estimators for depth maps (torch only, TorchScript-clean).
+r"""Robust noise estimation: the one home of every noise scale of the package (torch only,
+TorchScript-clean).
+
+Three estimators, each where its kind of robustness is needed:
+
+* **Wavelet MAD** (:func:`estimate_sigma`, :func:`estimate_noise_k`; :func:`wavelet_sigma` and
+  :func:`wavelet_noise_k` are the same without argument checks, for callers that hold the
+  :func:`hh_kernel` as a buffer): the noise level of a depth map from its finest diagonal wavelet
+  band (the denoisers, the builders, ``tof-fpn clean``'s record). Described below.
+* **Clipped mean** (:func:`clipped_scale`): ``sqrt(pi / 2)`` times the mean ``|x|``, refined three
+  times over the values within 3 of its sigmas, de-biased for the clipping. Sums only (no sort), so
+  it exports; unlike a MAD it does not collapse to 0 on two-valued data (a stripe at ``pi``). The
+  stripe gate (:mod:`.gate`) and the stripe detection (:mod:`tof_fpn_torch.analysis.stripes`).
+* **Clipped RMS** (:func:`clipped_rms_scale`): a MAD start refined by clipped-RMS iterations
+  de-biased for the clipping (:func:`scale_moment`), for one channel or the magnitude of two (a
+  complex residual); depth quantised to whole millimetres, where the MAD can be 0, is measured
+  right. The destriper (:mod:`._destripe_core`) and the complex-domain calibration.
+
+:func:`mad_to_sigma` turns a median of ``|e|`` into the standard deviation of each of the
+``channels`` Gaussian components of ``e``.
 
 Gaussian noise level (as ``skimage.restoration.estimate_sigma``)
 ----------------------------------------------------------------
@@ -32,13 +51,25 @@ over the valid coefficients (pixels with ``A <= 0`` or non-finite ``A`` are inva
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 
 from .. import constants as K
-from ..runtime._checks import check_image
+from ._checks import check_image
 
-__all__ = ["estimate_noise_k", "estimate_sigma", "hh_kernel"]
+__all__ = [
+    "clipped_rms_scale",
+    "clipped_scale",
+    "estimate_noise_k",
+    "estimate_sigma",
+    "hh_kernel",
+    "mad_to_sigma",
+    "scale_moment",
+    "wavelet_noise_k",
+    "wavelet_sigma",
+]
 
 
 def hh_kernel(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -103,7 +134,7 @@ def _check_valid(valid: torch.Tensor | None, x: torch.Tensor) -> None:
             )
 
 
-def _estimate_sigma(
+def wavelet_sigma(
     x: torch.Tensor, valid: torch.Tensor | None, kernel: torch.Tensor
 ) -> torch.Tensor:
     """:func:`estimate_sigma` without argument checks; ``x`` float32/64, ``kernel`` from
@@ -115,7 +146,7 @@ def _estimate_sigma(
     return _median_abs(d, keep) * K.MAD_TO_SIGMA
 
 
-def _estimate_noise_k(
+def wavelet_noise_k(
     x: torch.Tensor, amplitude: torch.Tensor, valid: torch.Tensor | None, kernel: torch.Tensor
 ) -> torch.Tensor:
     """:func:`estimate_noise_k` without argument checks (same conventions as above)."""
@@ -157,7 +188,7 @@ def estimate_sigma(x: torch.Tensor, valid: torch.Tensor | None = None) -> torch.
     work = x if x.dtype == torch.float64 else x.float()
     if valid is not None:
         valid = valid.expand(x.shape[0], x.shape[1], x.shape[2], x.shape[3])
-    return _estimate_sigma(work, valid, hh_kernel(work.dtype, work.device)).to(x.dtype)
+    return wavelet_sigma(work, valid, hh_kernel(work.dtype, work.device)).to(x.dtype)
 
 
 def estimate_noise_k(
@@ -185,4 +216,85 @@ def estimate_noise_k(
     if valid is not None:
         valid = valid.expand(x.shape[0], x.shape[1], x.shape[2], x.shape[3])
     kernel = hh_kernel(work.dtype, work.device)
-    return _estimate_noise_k(work, amplitude.to(work.dtype), valid, kernel).to(x.dtype)
+    return wavelet_noise_k(work, amplitude.to(work.dtype), valid, kernel).to(x.dtype)
+
+
+def mad_to_sigma(median_abs: torch.Tensor, channels: int) -> torch.Tensor:
+    """The standard deviation of each of the ``channels`` (1 or 2) i.i.d. Gaussian components of
+    ``e`` from the median of ``|e|``: ``MAD_TO_SIGMA`` times it for one channel (the MAD), divided
+    by ``sqrt(2 ln 2)`` (the median of a Rayleigh variable) for two."""
+    if channels == 1:
+        return median_abs * K.MAD_TO_SIGMA
+    return median_abs / math.sqrt(2.0 * math.log(2.0))
+
+
+def clipped_scale(
+    e: torch.Tensor, keep: torch.Tensor | None = None, dims: list[int] | None = None
+) -> torch.Tensor:
+    """Robust standard deviation of ``e`` over ``keep`` (None: all), reduced over ``dims`` (None:
+    all dims) and kept as size-1 dims: the clipped mean ``|e|`` of the module docstring.
+
+    Starts from ``sqrt(pi / 2) mean |e|`` (the mean ``|e|`` of a normal is ``sigma sqrt(2 / pi)``)
+    and takes three times the mean of the ``|e| <= 3 s`` divided by ``0.786619`` (the de-biasing
+    factor of the clipping; for a normal the conditional mean ``E[|e| : |e| <= 3 sigma]`` is
+    ``0.791157 sigma``, so the estimate is 0.6 % high: kept as it has always been). 0 where
+    nothing is kept. Sums only (no sort, no data-dependent shapes): it traces and exports.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> e = torch.randn(1, 1, 200, 200, generator=g)
+        >>> round(float(clipped_scale(e)), 2)  # sigma 1, the 0.6 % bias, the draw
+        1.01
+    """
+    axes = list(range(e.dim())) if dims is None else dims
+    ok = torch.ones_like(e, dtype=torch.bool) if keep is None else keep
+    a = torch.where(ok, e.abs(), torch.zeros_like(e))
+    n = ok.sum(axes, keepdim=True).clamp_min(1).to(e.dtype)
+    s = 1.2533141373155003 * a.sum(axes, keepdim=True) / n  # sqrt(pi / 2) mean |e|
+    for _ in range(3):
+        inside = ok & (a <= 3.0 * s)
+        m = inside.sum(axes, keepdim=True).clamp_min(1).to(e.dtype)
+        s = torch.where(inside, a, torch.zeros_like(a)).sum(axes, keepdim=True) / (0.786619 * m)
+    return s
+
+
+def scale_moment(channels: int, clip: float) -> float:
+    """``E[|e|^2 | |e| <= clip sigma] / sigma^2`` for ``e`` with ``channels`` i.i.d. N(0, sigma^2)
+    components (1: truncated normal; 2: truncated Rayleigh), used to de-bias the clipped RMS."""
+    c = float(clip)
+    if channels == 1:
+        p = math.erf(c / math.sqrt(2.0))
+        dens = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
+        return 1.0 - 2.0 * c * dens / p
+    t = 0.5 * c * c
+    p = 1.0 - math.exp(-t)
+    return 2.0 * (1.0 - math.exp(-t) * (1.0 + t)) / p
+
+
+def clipped_rms_scale(
+    mag: torch.Tensor, ok: torch.Tensor | None, clip: float, moment: float, channels: int
+) -> torch.Tensor:
+    """Per-image scale (N,) of the per-channel noise from magnitudes ``mag`` (N, 1, R, C) at the
+    usable entries ``ok`` (None: all): the median start of :func:`mad_to_sigma` (the RMS where
+    that is 0) refined by two clipped-RMS iterations (``|e| <= clip sigma``) de-biased by
+    ``moment`` (:func:`scale_moment` of ``channels`` and ``clip``)."""
+    n = mag.shape[0]
+    flat = mag.reshape(n, -1)
+    sq = flat * flat
+    if ok is None:
+        okf = torch.ones_like(flat, dtype=torch.bool)
+        med = flat.median(dim=1).values
+    else:
+        okf = ok.reshape(n, -1)
+        sq = torch.where(okf, sq, 0.0)
+        med = torch.nanmedian(torch.where(okf, flat, math.nan), dim=1).values
+        med = torch.nan_to_num(med, nan=0.0)
+    count = okf.sum(1).to(mag.dtype)
+    start = mad_to_sigma(med, channels)
+    rms = torch.sqrt(sq.sum(1) / count.clamp_min(1.0) / channels)
+    sigma = torch.where(start > 0, start, rms)
+    for _ in range(2):
+        sel = okf & (flat <= clip * sigma[:, None])
+        m2 = torch.where(sel, sq, 0.0).sum(1) / sel.sum(1).clamp_min(1)
+        sigma = torch.sqrt(m2 / moment)
+    return sigma
