@@ -6,7 +6,7 @@ Layers (docs/architecture.md), each a subpackage that may import only the ones b
 - :mod:`.runtime` -- the torch-only stage: :class:`FPNFilter`, :class:`AmplitudeFusion`,
   :class:`FPNSuppression`, and the validity rule :func:`valid_mask`;
 - :mod:`.denoise` -- torch-only denoisers (:class:`NonLocalMeans`);
-- :mod:`.design` -- offline NumPy/SciPy filter design (:func:`design_fpn`);
+- :mod:`.design` -- offline NumPy filter design (:func:`design_fpn`);
 - :mod:`.analysis` -- metrics (:func:`psnr`) and stripe estimation (:func:`estimate_stripes`);
 - :mod:`.sim` -- the raw-level simulator;
 - :mod:`.build` -- run-time modules from a design or from data (:func:`suppression_from_design`);

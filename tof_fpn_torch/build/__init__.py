@@ -2,7 +2,7 @@ r"""Builders: run-time modules from an offline design or from data (the layer ab
 
 The run-time package (:mod:`tof_fpn_torch.runtime`) takes filter taps and knows nothing of how they
 were designed; the design package (:mod:`tof_fpn_torch.design`) produces taps and knows nothing of
-torch. These factories join them: they design the taps (NumPy / SciPy), or first estimate the
+torch. These factories join them: they design the taps (NumPy), or first estimate the
 stripes in data (:mod:`tof_fpn_torch.analysis`), then build the torch modules and record on them
 what the design was (``order``, ``rho``, ``notches``, which TorchScript and ONNX exports keep).
 

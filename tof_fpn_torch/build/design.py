@@ -1,4 +1,4 @@
-"""Builders from the offline design: notch taps designed with NumPy / SciPy, then the run-time
+"""Builders from the offline design: notch taps designed with NumPy, then the run-time
 modules (:class:`~tof_fpn_torch.runtime.FPNFilter`, :class:`~tof_fpn_torch.runtime.FPNSuppression`)
 with the design recorded on them."""
 

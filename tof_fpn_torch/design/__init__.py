@@ -1,4 +1,4 @@
-"""Offline design of the FPN notch filters (NumPy / SciPy / matplotlib; never at run time).
+"""Offline design of the FPN notch filters (NumPy / matplotlib; never at run time).
 
 May import: NumPy, SciPy, matplotlib (:mod:`.plot` only), :mod:`tof_fpn_torch.constants`. Must not
 import torch or any other layer of the package: it produces taps (NumPy arrays) that

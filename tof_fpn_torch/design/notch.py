@@ -1,4 +1,4 @@
-"""Offline design of linear-phase notch FIR filters for FPN suppression (NumPy/SciPy only).
+"""Offline design of linear-phase notch FIR filters for FPN suppression (NumPy only).
 
 Implements Sec. III of M. Georgiev, R. Bregovic and A. Gotchev, "Fixed-pattern noise suppression in
 low-sensing environment of Time-of-Flight devices", IEEE SAS 2015 (DOI 10.1109/SAS.2015.7133633).
