@@ -1,7 +1,7 @@
 """Tests of tof_fpn_torch.denoise.BM3D against the ``bm3d`` package (Makinen, Azzari, Foi).
 
 CPU, seeded, small images (the package takes ~1 s per 160 x 160 image here); the 512 x 512 and
-424 x 512 figures are in docs/denoise.md (scripts/bench_denoise.py).
+424 x 512 figures are in docs/denoise.md (benchmarks/bench_denoise.py).
 """
 
 from __future__ import annotations

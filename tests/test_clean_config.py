@@ -8,9 +8,11 @@ import pytest
 import torch
 from torch import nn
 
+from tof_fpn_torch import cameras
 from tof_fpn_torch import constants as K
 from tof_fpn_torch.clean import (
     DENOISERS,
+    Calibration,
     CleanConfig,
     build_pipeline,
     config_from_dict,
@@ -19,6 +21,7 @@ from tof_fpn_torch.clean import (
     load_config,
     register_denoiser,
 )
+from tof_fpn_torch.clean.config import BATCH
 from tof_fpn_torch.cli import build_parser
 from tof_fpn_torch.cli.clean import config_from_args
 from tof_fpn_torch.denoise import NonLocalMeans
@@ -49,9 +52,24 @@ def test_toml_round_trip_and_version(tmp_path):
 
 def test_defaults_are_the_package_defaults():
     cfg = CleanConfig()
-    assert (cfg.notch, cfg.fusion, cfg.destripe, cfg.denoise) == ("design", "camera", "off", "none")
-    assert cfg.order == K.DEFAULT_ORDER and cfg.batch == K.CLEAN_BATCH
+    assert cfg.stage == "auto" and cfg.rounding == "dither" and cfg.camera is None
+    assert (cfg.notch, cfg.fusion, cfg.destripe, cfg.denoise) == ("data", "data", "auto", "none")
+    assert cfg.order == K.DEFAULT_ORDER and cfg.batch == BATCH
     assert CleanConfig(notch="off").fusion == "off"
+    paper = CleanConfig(stage="paper")
+    assert (paper.notch, paper.fusion, paper.destripe, paper.camera) == (
+        "design",
+        "camera",
+        "off",
+        "camcube",
+    )
+    # an explicit key wins over the preset; a new preset brings its own defaults
+    assert CleanConfig(stage="paper", destripe="columns").destripe == "columns"
+    assert cfg.replace(stage="paper").notch == "design"
+    assert paper.replace(stage="auto").camera is None
+    assert cfg.replace(notch="design").fusion == "camera"  # the fusion that goes with it
+    with pytest.raises(ValueError, match="unknown camera profile 'kinekt'"):
+        CleanConfig(camera="kinekt")
 
 
 @pytest.mark.parametrize(
@@ -65,6 +83,9 @@ def test_defaults_are_the_package_defaults():
         ({"files": {"batch": 0}}, "batch must be an int >= 1"),
         ({"notch": {"rho": -1.0}}, "rho must be > 0"),
         ({"notch": {"gate": "yes"}}, "gate must be true or false"),
+        ({"pipeline": {"stage": "best"}}, "stage must be one of \\['auto', 'paper'\\]"),
+        ({"files": {"rounding": "up"}}, "rounding must be one of"),
+        ({"files": {"output_scale": 0}}, "output_scale must be > 0"),
     ],
 )
 def test_bad_config_names_key_value_allowed(data, needle):
@@ -94,15 +115,15 @@ def test_flags_override_the_file(tmp_path):
 
 def test_each_stage_subset_builds_what_it_says():
     d, a = _frames()
-    empty = build_pipeline(CleanConfig(notch="off"))
+    empty = build_pipeline(CleanConfig(stage="paper", notch="off"))
     assert empty.fpn is None and empty.denoiser is None and torch.equal(empty(d, a), d)
     only = build_pipeline(CleanConfig(notch="off", destripe="columns"))
     assert only.fpn.filter is None and isinstance(only.fpn.destripe, Destripe)
-    full = build_pipeline(CleanConfig(destripe="rows", denoise="nlm"))
+    full = build_pipeline(CleanConfig(stage="paper", destripe="rows", denoise="nlm"))
     info = describe(full)
     assert info["notch"]["order"] == K.DEFAULT_ORDER and info["fusion"]["low"] == K.FUSION_LOW
     assert isinstance(full.denoiser, NonLocalMeans) and info["destripe"].startswith("dim=(-2,)")
-    no_fusion = build_pipeline(CleanConfig(fusion="off", gate=False))
+    no_fusion = build_pipeline(CleanConfig(stage="paper", fusion="off", gate=False))
     assert no_fusion.fpn.fusion is None and no_fusion.fpn.gate is False
 
 
@@ -112,9 +133,9 @@ def test_data_stages_are_measured_on_the_calibration_frames():
 
     def calib():
         calls.append(1)
-        return d, a
+        return Calibration(d, a)
 
-    p = build_pipeline(CleanConfig(notch="data", destripe="auto", fusion="data"), calib)
+    p = build_pipeline(CleanConfig(), calib)  # the default: every piece measured
     assert len(calls) == 1  # read once per build
     assert any(abs(w - math.pi) < 0.05 for w in p.fpn.filter.notches)
     assert p.fpn.fusion is not None and p.fpn.fusion.low != K.FUSION_LOW
@@ -123,12 +144,21 @@ def test_data_stages_are_measured_on_the_calibration_frames():
         2.0 + 0.004 * torch.randn(64, generator=g) + 0.002 * torch.randn(4, 1, 40, 64, generator=g)
     )
     for notch in ("off", "design"):  # random column offsets: broadband
-        auto = build_pipeline(CleanConfig(notch=notch, destripe="auto"), lambda: (offsets, a))
+        auto = build_pipeline(
+            CleanConfig(notch=notch, destripe="auto"), lambda: Calibration(offsets, a)
+        )
         assert isinstance(auto.fpn.destripe, Destripe), notch
-    flat = build_pipeline(CleanConfig(notch="off", destripe="auto"), lambda: (d * 0 + 2.0, a))
+    flat = build_pipeline(CleanConfig(), lambda: Calibration(d * 0 + 2.0, a))
     assert flat.fpn is None  # nothing to remove: no stage
     with pytest.raises(ValueError, match="no calibration frames"):
-        build_pipeline(CleanConfig(fusion="data"))
+        build_pipeline(CleanConfig(stage="paper", fusion="data"))
+    # fusion = camera: the files' camera profile, unless one is configured
+    adi = build_pipeline(
+        CleanConfig(notch="design", destripe="off"), lambda: Calibration(d, a, "adtf3175")
+    )
+    assert adi.fpn.fusion.low == cameras.profile("adtf3175").fusion_low
+    cc = build_pipeline(CleanConfig(stage="paper"), lambda: Calibration(d, a, "adtf3175"))
+    assert cc.fpn.fusion.low == K.FUSION_LOW
 
 
 def test_denoiser_registry_takes_new_names():
@@ -143,16 +173,22 @@ def test_denoiser_registry_takes_new_names():
     register_denoiser("halve", Halve)
     try:
         p = build_pipeline(
-            CleanConfig(notch="off", denoise="halve", denoise_options={"factor": 2.0})
+            CleanConfig(
+                stage="paper", notch="off", denoise="halve", denoise_options={"factor": 2.0}
+            )
         )
         assert torch.equal(
             p(torch.ones(1, 1, 2, 2), torch.ones(1, 1, 2, 2)), torch.full((1, 1, 2, 2), 2.0)
         )
         with pytest.raises(ValueError, match="unknown option.*'size'.*allowed.*factor"):
-            build_pipeline(CleanConfig(notch="off", denoise="halve", denoise_options={"size": 1}))
+            build_pipeline(
+                CleanConfig(
+                    stage="paper", notch="off", denoise="halve", denoise_options={"size": 1}
+                )
+            )
     finally:
         DENOISERS.pop("halve")
     with pytest.raises(ValueError, match="denoise must be 'none' or one of"):
-        build_pipeline(CleanConfig(denoise="wiener"))
+        build_pipeline(CleanConfig(stage="paper", denoise="wiener"))
     with pytest.raises(ValueError, match="identifier"):
         register_denoiser("none", Halve)

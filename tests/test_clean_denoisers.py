@@ -38,7 +38,7 @@ def test_clean_offers_every_registered_name():
 @pytest.mark.parametrize("name", denoise.names())
 def test_each_denoiser_runs_in_the_pipeline_and_lowers_the_error(name):
     depth, amp, truth, holes = _noisy_frame()
-    pipe = build_pipeline(CleanConfig(notch="off", denoise=name))
+    pipe = build_pipeline(CleanConfig(stage="paper", notch="off", denoise=name))
     assert isinstance(pipe.denoiser, denoise.module_class(name)) and pipe.fpn is None
     out = pipe(depth, amp)
     assert out.shape == depth.shape and out.dtype == depth.dtype
@@ -52,13 +52,17 @@ def test_each_denoiser_runs_in_the_pipeline_and_lowers_the_error(name):
 
 def test_aliases_and_options_reach_the_denoiser():
     pipe = build_pipeline(
-        CleanConfig(notch="off", denoise="Sliding_DCT", denoise_options={"block_size": 8})
+        CleanConfig(
+            stage="paper", notch="off", denoise="Sliding_DCT", denoise_options={"block_size": 8}
+        )
     )
     assert isinstance(pipe.denoiser, denoise.SlidingDCT)
     with pytest.raises(ValueError, match="unknown option.*'bogus'"):
-        build_pipeline(CleanConfig(notch="off", denoise="bm3d", denoise_options={"bogus": 1}))
+        build_pipeline(
+            CleanConfig(stage="paper", notch="off", denoise="bm3d", denoise_options={"bogus": 1})
+        )
     with pytest.raises(ValueError, match="denoise must be 'none' or one of"):
-        build_pipeline(CleanConfig(notch="off", denoise="wiener"))
+        build_pipeline(CleanConfig(stage="paper", notch="off", denoise="wiener"))
 
 
 @pytest.mark.parametrize("name", ["bm3d", "joint-bilateral"])
@@ -73,3 +77,36 @@ def test_cli_clean_with_a_registry_denoiser(tmp_path, capsys, name):
         assert np.array_equal(np.isnan(d_in), np.isnan(d_out))
         assert not np.array_equal(d_in, d_out, equal_nan=True)
     capsys.readouterr()
+
+
+def test_one_registry_for_clean_and_denoise():
+    """``tof-fpn clean``'s registry is the denoise package's: a name registered through either is
+    built by both, with the same check of its options."""
+    from tof_fpn_torch.clean import register_denoiser
+
+    assert DENOISERS is denoise.DENOISERS and register_denoiser is denoise.register
+
+    class Scale(torch.nn.Module):
+        def __init__(self, factor: float = 0.5):
+            super().__init__()
+            self.factor = factor
+
+        def forward(self, depth, amplitude=None):
+            return depth * self.factor
+
+    register_denoiser("scale_it", Scale)
+    try:
+        assert "scale_it" in denoise.names() and denoise.get("scale_it", factor=3.0).factor == 3.0
+        pipe = build_pipeline(
+            CleanConfig(stage="paper", notch="off", denoise="scale_it", denoise_options={})
+        )
+        assert isinstance(pipe.denoiser, Scale) and not denoise.scriptable("scale_it")
+        with pytest.raises(
+            ValueError, match=r"has no parameter\(s\) \['size'\]; allowed: \['factor'\]"
+        ):
+            denoise.get("scale_it", size=2)
+    finally:
+        denoise.DENOISERS.pop("scale_it")
+    assert "scale_it" not in DENOISERS
+    with pytest.raises(ValueError, match="unknown denoiser 'scale_it'"):
+        denoise.get("scale_it")

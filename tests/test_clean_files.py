@@ -16,7 +16,8 @@ import torch
 from PIL import Image, PngImagePlugin
 
 from tof_fpn_torch import io as tio
-from tof_fpn_torch.io.stored import encode_depth, frame_set_tensors, read_frame_sets, write_like
+from tof_fpn_torch.io.encode import encode_depth
+from tof_fpn_torch.io.stored import frame_set_tensors, read_frame_sets, write_like
 
 RNG = np.random.default_rng(7)
 DEPTH_MM = RNG.integers(500, 4000, (2, 12, 16)).astype(np.uint16)

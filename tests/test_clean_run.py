@@ -39,9 +39,10 @@ def test_output_keeps_names_dtypes_units_and_invalid_pixels(tmp_path, capsys):
     out = tmp_path / "out"
     status, stdout, err = _cli(["clean", src, out, "--quiet"], capsys)
     assert status == 0 and err == [], err
-    assert stdout.startswith(f"created directory {out}\ncleaned 10 file(s) (10 frames)")
+    assert stdout.startswith(f"created directory {out}\nstage auto, measured on 8 calibration")
+    assert "\ncleaned 10 file(s) (10 frames)" in stdout and f"figure: {out}/report.png" in stdout
     inputs = tree(src)
-    outputs = tree(out, skip=("manifest.jsonl", "clean.toml"))
+    outputs = tree(out, skip=("manifest.jsonl", "clean.toml", "report.png"))
     assert sorted(outputs) == sorted(inputs)  # the same names, sub-folders included
     stripes_in = stripes_out = 0.0
     for name, data in inputs.items():
@@ -110,9 +111,10 @@ def test_hdf5_file_input_keeps_structure_and_values(tmp_path):
             )
             g.create_dataset("amplitude", data=np.full(d.shape, 100, np.uint16))
     out = tmp_path / "out"
-    rep = clean(str(src), str(out), CleanConfig(batch=3))
+    config = CleanConfig(stage="paper", batch=3, rounding="nearest")
+    rep = clean(str(src), str(out), config)
     assert rep.status == 0 and rep.frames == 10
-    pipe = build_pipeline(CleanConfig(batch=3))
+    pipe = build_pipeline(config)
     with h5py.File(src) as a, h5py.File(out / "recording.h5") as b:
         assert b.attrs["camera"] == "test" and sorted(b) == ["take0", "take1"]
         for key in ("take0", "take1"):
@@ -186,7 +188,6 @@ def _bad_inputs(root):
         "corrupt_depth.png": "cannot read",
         "trunc_depth.png": "cannot read",
         "shape_depth.png": "same shape",
-        "nan_depth.png": "no valid pixel",
         "lonely_depth.png": "no partner",
         "strings.h5": "dtype",
         "locked/": "cannot read directory",
@@ -207,27 +208,38 @@ def test_bad_input_is_listed_with_its_reason_and_the_rest_is_done(tmp_path, caps
     status, stdout, err = _cli(["clean", tmp_path / "in", out, "--quiet", "--workers", "2"], capsys)
     assert status == 1
     assert err == [
-        f"tof-fpn clean: error: 7 of 13 file(s) failed; the reasons are in {out}/manifest.jsonl"
+        f"tof-fpn clean: error: 6 of 13 file(s) failed (reasons above and in {out}/manifest.jsonl)"
     ]
+    for name, needle in expected.items():  # each failure on a line of its own, with its reason
+        assert any(
+            line.startswith(f"failed: {name}: ") and needle in line for line in stdout.splitlines()
+        )
     records = [r for r in read_manifest(str(out / "manifest.jsonl")) if "file" in r]
     failed = {r["file"]: r["error"] for r in records if r["status"] == "failed"}
     assert sorted(failed) == sorted(expected)
     for name, needle in expected.items():
         assert needle in failed[name], (name, failed[name])
-    assert sorted(_done_counts(out)) == [f"f{i:03d}_depth.png" for i in range(6)]
-    names = set(tree(out, skip=("manifest.jsonl", "clean.toml")))
-    assert names == {f"f{i:03d}_{k}.png" for i in range(6) for k in ("depth", "amplitude")}
+    # a frame with no valid pixel has nothing to clean: it is written as it came
+    assert sorted(_done_counts(out)) == sorted(
+        ["nan_depth.png"] + [f"f{i:03d}_depth.png" for i in range(6)]
+    )
+    done = {r["file"]: r for r in records if r["status"] == "done"}
+    assert done["nan_depth.png"]["empty_frames"] == 1
+    assert (out / "nan_depth.png").read_bytes() == (tmp_path / "in" / "nan_depth.png").read_bytes()
+    names = set(tree(out, skip=("manifest.jsonl", "clean.toml", "report.png")))
+    pngs = {f"f{i:03d}_{k}.png" for i in range(6) for k in ("depth", "amplitude")}
+    assert names == pngs | {"nan_depth.png", "nan_amplitude.png"}
 
 
 def test_a_failed_write_leaves_nothing_under_the_output_name(tmp_path, monkeypatch):
     png_folder(tmp_path / "in", 4, sub_every=0)
     real = clean_work.write_like
 
-    def half_then_fail(src, dst, depths, sets):
+    def half_then_fail(src, dst, *args):
         if "f002" in str(src):
             open(dst, "wb").write(b"half")
             raise OSError(28, "No space left on device")
-        return real(src, dst, depths, sets)
+        return real(src, dst, *args)
 
     monkeypatch.setattr(clean_work, "write_like", half_then_fail)
     rep = clean(str(tmp_path / "in"), str(tmp_path / "out"))
@@ -289,6 +301,7 @@ def test_a_single_file_input_finds_its_partner(tmp_path):
     assert {p.name for p in (tmp_path / "out").glob("*.png")} == {
         "f001_depth.png",
         "f001_amplitude.png",
+        "report.png",
     }
 
 

@@ -12,6 +12,7 @@ import json
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -22,14 +23,14 @@ import torch
 
 import tof_fpn_torch
 from tof_fpn_torch import constants as K
-from tof_fpn_torch import experiments as E
 from tof_fpn_torch import export as X
 from tof_fpn_torch.cli import _common, build_parser, main
 from tof_fpn_torch.cli import demo as cli_demo
 from tof_fpn_torch.cli import design as cli_design
 from tof_fpn_torch.cli import export as cli_export
-from tof_fpn_torch.cli import reproduce as cli_reproduce
+from tof_fpn_torch.demo import run_demo
 from tof_fpn_torch.design import MAX_ORDER, RemezConvergenceError, max_rho
+from tof_fpn_torch.paper_data import make_synthetic_data
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -73,7 +74,6 @@ def test_design_huge_order_is_one_line_error(cwd, capsys):
 
 FIVE_NOTCHES = ["--notch", "0.1", "--notch", "0.2", "--notch", "0.3", "--notch", "0.4"]
 D = ["design", "--out", "t.npy"]
-RQ = ["reproduce", "table1", "--quick"]
 
 BAD = [
     # design
@@ -97,24 +97,6 @@ BAD = [
     (["export", "--format", "torchscript", "--dim", "x"], ["--dim", "'x'", "columns"]),
     (["export", "--format", "torchscript", "--order", "2000"], ["order=2000", f"{MAX_ORDER}"]),
     (["export", "--format", "torchscript", "--rho", "0.5"], ["--rho 0.5", f"{max_rho():.6g}"]),
-    # reproduce
-    (["reproduce", "table3"], ["experiment", "'table3'", "table1"]),
-    (RQ + ["--threads", "0"], ["--threads", "'0'", f"[1, {_common.MAX_THREADS}]"]),
-    (RQ + ["--threads", "100000"], ["--threads", "'100000'", f"[1, {_common.MAX_THREADS}]"]),
-    (RQ + ["--size", "8"], ["--size", "'8'", "[32, 4096]"]),
-    (RQ + ["--size", "0"], ["--size", "'0'", "[32, 4096]"]),
-    (RQ + ["--size", "100000"], ["--size", "'100000'", "[32, 4096]"]),
-    (RQ + ["--seeds", "-1"], ["--seeds", "'-1'", ">= 0"]),
-    (RQ + ["--seeds", "1,1"], ["--seeds", "'1,1'", "distinct"]),
-    (RQ + ["--seeds", "a"], ["--seeds", "'a'"]),
-    (RQ + ["--h", "0"], ["--h", "'0'", ">= 1e-06"]),
-    (RQ + ["--h", "1e-308"], ["--h", "'1e-308'", ">= 1e-06"]),
-    (RQ + ["--patch-size", "4"], ["patch_size", "odd", "4"]),
-    (RQ + ["--patch-size", "0"], ["--patch-size", "'0'", ">= 1"]),
-    (RQ + ["--patch-distance", "-1"], ["--patch-distance", "'-1'", ">= 0"]),
-    (RQ + ["--patch-distance", "500"], ["--patch-distance", "500", str(cli_reproduce.QUICK_SIZE)]),
-    (RQ + ["--case", "fpn"], ["--case", "fig9 only"]),
-    (["reproduce", "fig9", "--quick", "--compensate-delay"], ["--compensate-delay", "table1 only"]),
     # demo
     (["demo", "--dpi", "5"], ["dpi", "5", "[10, 600]"]),
     (["demo", "--dpi", "x"], ["--dpi", "'x'"]),
@@ -131,7 +113,7 @@ BAD = [
 
 @pytest.mark.parametrize("argv, needles", BAD, ids=[" ".join(a) for a, _ in BAD])
 def test_bad_argument_is_one_line_error(argv, needles, cwd, capsys):
-    command = argv[0] if argv and argv[0] in ("design", "export", "reproduce", "demo") else ""
+    command = argv[0] if argv and argv[0] in ("design", "export", "demo") else ""
     line = one_line_error(command, argv, capsys)
     for needle in needles:
         assert needle in line, (needle, line)
@@ -158,10 +140,10 @@ def test_float_and_int_arg_messages():
 
 
 def test_cli_bounds_agree_with_the_library():
-    """MIN_SIZE is the experiments' own lower bound on the scene side (not a second opinion)."""
-    E.make_synthetic_data((0,), _common.MIN_SIZE)
+    """MIN_SIZE is the paper data's own lower bound on the scene side (not a second opinion)."""
+    make_synthetic_data((0,), _common.MIN_SIZE)
     with pytest.raises(ValueError, match="size"):
-        E.make_synthetic_data((0,), _common.MIN_SIZE - 1)
+        make_synthetic_data((0,), _common.MIN_SIZE - 1)
 
 
 # --- 2. output paths: the file written is exactly the path printed ---------------------------
@@ -210,18 +192,7 @@ def test_export_writes_exactly_the_path_it_prints(cwd, capsys):
     torch.jit.load("sub/model")
 
 
-def test_reproduce_and_demo_print_the_files_they_wrote(cwd, capsys):
-    status, text, err = run(
-        ["reproduce", "table1", "--quick", "--size", "32", "--out", "./r1/", "--no-progress"],
-        capsys,
-    )
-    assert status == 0, err
-    assert "created directory ./r1/\n" in text
-    (wrote,) = re.findall(r"^wrote (.*) \(", text, flags=re.M)
-    files = wrote.split(", ")
-    assert files == [f"./r1/table1.{ext}" for ext in ("csv", "json", "md", "png")]
-    assert all(os.path.isfile(f) for f in files)
-
+def test_demo_prints_the_files_it_wrote(cwd, capsys):
     status, text, err = run(["demo", "--size", "32", "--out", "./d1/"], capsys)
     assert status == 0, err
     assert "picture: ./d1/demo.png " in text and "wrote ./d1/demo.png, ./d1/demo.json\n" in text
@@ -245,8 +216,6 @@ def test_existing_directory_is_not_reported_as_created(cwd, capsys):
         (["design", "--order", "20", "--rho", "0.1", "--out", "d.npy"], "directory 'd.npy'"),
         (["export", "--format", "torchscript", "--out", "f/x/m.pt"], "'f' is a file"),
         (["export", "--format", "torchscript", "--out", "d"], "directory 'd'"),
-        (["reproduce", "table1", "--quick", "--out", "f"], "'f' is a file"),
-        (["reproduce", "table1", "--quick", "--out", "f/sub"], "'f' is a file"),
         (["demo", "--out", "f"], "'f' is a file"),
         (["demo", "--out", ""], "--out must be a directory path"),
     ],
@@ -357,32 +326,10 @@ def help_text(command, capsys):
     return " ".join(capsys.readouterr().out.split())  # argparse wraps lines
 
 
-def test_reproduce_help_states_the_quick_size_it_uses(capsys, monkeypatch):
-    text = help_text("reproduce", capsys)
-    assert f"{cli_reproduce.QUICK_SIZE}x{cli_reproduce.QUICK_SIZE}" in text
-    assert f"--quick: {cli_reproduce.QUICK_SIZE}" in text and not re.search(r"\b96\b", text)
-    size = inspect.signature(E.run_table1).parameters["size"].default
-    assert f"default {size};" in text and f"(default {E.NLMSettings.h})" in text
-    monkeypatch.setattr(cli_reproduce, "QUICK_SIZE", 77)
-    assert "77x77" in help_text("reproduce", capsys)
-
-
-def test_quick_runs_at_the_size_the_help_states(capsys, monkeypatch):
-    seen = {}
-
-    def fake(**kwargs):
-        seen.update(kwargs)
-        raise ValueError("stop")
-
-    monkeypatch.setattr(E, "run_table1", fake)
-    assert main(["reproduce", "table1", "--quick"]) == 2
-    assert seen["size"] == cli_reproduce.QUICK_SIZE and seen["seeds"] == cli_reproduce.QUICK_SEEDS
-
-
 def test_defaults_are_the_library_defaults(capsys):
     parser = build_parser()
     demo = vars(parser.parse_args(["demo"]))
-    sig = inspect.signature(E.run_demo).parameters
+    sig = inspect.signature(run_demo).parameters
     for name in ("seed", "size", "order", "rho", "dpi"):
         assert demo[name] == sig[name].default
     text = help_text("demo", capsys)
@@ -450,15 +397,38 @@ def readme_commands() -> list[str]:
 
 def test_readme_lists_every_command():
     commands = readme_commands()
-    for name in ("design", "export", "reproduce", "demo", "--version"):
+    for name in ("design", "export", "demo", "clean", "calibrate", "convert", "--version"):
         assert any(c.split()[1] == name for c in commands), name
     assert any("--format onnx" in c for c in commands)
     assert not any(re.search(r"[|\[\]]", c) for c in commands)  # no a|b or [optional] notation
 
 
+def _sample_frames(folder: str, walls: bool) -> None:
+    """A few uint16-mm PNG pairs with a shared column pattern: flat slanted walls, or a scene."""
+    from PIL import Image
+
+    os.makedirs(folder)
+    rng = np.random.default_rng(0)
+    col = rng.normal(0.0, 1.5, 64)
+    yy, xx = np.mgrid[0:48, 0:64]
+    for i in range(4):
+        d = 1500 + 100 * i + 2 * xx + yy + col[None, :] + rng.normal(0, 1, (48, 64))
+        if not walls:
+            d = d + 300 * ((xx > 30) & (yy > 20))
+        Image.fromarray(np.rint(d).astype(np.uint16)).save(f"{folder}/f{i}_depth.png")
+        Image.fromarray(np.full((48, 64), 200, np.uint16)).save(f"{folder}/f{i}_amplitude.png")
+
+
 def test_readme_commands_work_as_written(cwd, capsys, monkeypatch):
     if importlib.util.find_spec("onnx") is not None:
         monkeypatch.setattr(X, "export_onnx", _fake_export_onnx())  # the real one: test_export.py
+    # the convert example's input: the real Azure Kinect recording (fails, never skips, if absent)
+    mkv = ROOT.parent / "shared" / "data" / "real" / "azure_kinect" / "desk_recording.mkv"
+    if not mkv.is_file():
+        pytest.fail(f"real capture missing: {mkv} (../shared/data/real beside the repository)")
+    shutil.copyfile(mkv, "desk_recording.mkv")
+    _sample_frames("wall_frames", walls=True)  # the folders the README's examples name
+    _sample_frames("my_frames", walls=False)
     for command in readme_commands():
         words = shlex.split(command)
         if "onnx" in words and importlib.util.find_spec("onnxscript") is None:
@@ -474,8 +444,9 @@ def test_readme_commands_work_as_written(cwd, capsys, monkeypatch):
         "resp.png",
         cli_export.DEFAULT_STEM + cli_export.SUFFIXES["torchscript"],
         os.path.join(cli_demo.DEFAULT_OUT, "demo.png"),
-        os.path.join(cli_reproduce.DEFAULT_OUT, "table1.csv"),
-        os.path.join(cli_reproduce.DEFAULT_OUT, "fig9.csv"),
+        "wall.npz",
+        os.path.join("out", "f0_depth.png"),
+        os.path.join("recordings", "desk_recording.npz"),
     ]
     for path in expected:
         assert os.path.isfile(path), path

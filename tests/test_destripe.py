@@ -19,6 +19,7 @@ from tof_fpn_torch.analysis.stripe_energy import (
     structure_mask,
 )
 from tof_fpn_torch.runtime import Destripe, destripe
+from tof_fpn_torch.runtime import _destripe_core as core
 from tof_fpn_torch.runtime._destripe_core import column_offsets, highpass
 from tof_fpn_torch.sim import (
     Camera,
@@ -74,8 +75,8 @@ def test_offsets_match_numpy_reference(shrink, masked):
             64,
             16,
             K.DESTRIPE_STEP_CLIP,
-            K.DESTRIPE_NULL_Z,
-            K.DESTRIPE_MAX_EDGE_SHARE,
+            core.NULL_Z,
+            core.MAX_EDGE_SHARE,
         )
         np.testing.assert_allclose(off[n].numpy(), ref, rtol=0, atol=1e-12)
 
@@ -93,8 +94,8 @@ def test_complex_offsets_match_numpy_reference():
         64,
         16,
         K.DESTRIPE_STEP_CLIP,
-        K.DESTRIPE_NULL_Z,
-        K.DESTRIPE_MAX_EDGE_SHARE,
+        core.NULL_Z,
+        core.MAX_EDGE_SHARE,
     )
     np.testing.assert_allclose(off[0].numpy(), ref, rtol=0, atol=1e-12)
 

@@ -1,7 +1,7 @@
 """Which effect is named first (issue 10), and the benchmark generator's cyclic-error waveform.
 
 ``_prune`` is backward elimination over the terms the forward rounds added: a term whose removal
-costs less than ``DIAG_MIN_DAIC`` is dropped, and the rest are ordered by what their removal
+costs less than ``naming.MIN_DAIC`` is dropped, and the rest are ordered by what their removal
 costs. Tested with stand-in models whose NLL is a table over the set of terms (no fitting), so
 the ordering rule itself is checked, including the case the forward rounds get wrong: a stand-in
 term that wins the first round but adds little once the true term is in the model.
@@ -9,15 +9,12 @@ term that wins the first round but adds little once the true term is in the mode
 
 from __future__ import annotations
 
-import importlib.util
-import math
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from tof_fpn_torch import constants as K
 from tof_fpn_torch.diagnosis import run as R
+from tof_fpn_torch.diagnosis.naming import MIN_DAIC
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,9 +65,9 @@ def test_the_term_no_other_explains_is_named_first(monkeypatch):
 
 
 def test_a_term_made_redundant_is_dropped_and_the_rest_ordered(monkeypatch):
-    # three terms: fpn_pattern adds < DIAG_MIN_DAIC once the other two are in; of the two left,
+    # three terms: fpn_pattern adds < MIN_DAIC once the other two are in; of the two left,
     # vignetting's removal costs more
-    small = (K.DIAG_MIN_DAIC - 4) / 2  # nats: a drop cost of 2 * small - 2 < DIAG_MIN_DAIC
+    small = (MIN_DAIC - 4) / 2  # nats: a drop cost of 2 * small - 2 < MIN_DAIC
     full = 500.0
     _patch(
         monkeypatch,
@@ -104,44 +101,6 @@ def test_every_term_needed_keeps_the_forward_order_when_it_is_right(monkeypatch)
     assert [e["name"] for e in effects] == ["a", "b"]
 
 
-def _generator():
-    path = ROOT / "scripts" / "concealed_generator.py"
-    spec = importlib.util.spec_from_file_location("concealed_generator", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_generator_cyclic_waveform_has_no_phase_staircase():
-    # runs 1-7 read the correlation table at the nearest of 1024 phases: a noise-free pure
-    # sinusoid then decoded to a 7.3 mm staircase (+-3.7 mm); interpolated it decodes exactly
-    g = _generator()
-    f, n = 20e6, 4
-    d = np.linspace(1.0, 1.05, 2001)
-    arg = 4 * np.pi * f * d / g.C_AIR
-    arg = arg[:, None] + 2 * np.pi * np.arange(n)[None] / n
-    q = g._wave(g._correlation(0.0), arg).T.reshape(1, n, 1, -1)
-    depth, _ = g._decode(q, f)
-    assert np.abs(depth[0, 0] - d).max() < 1e-4
-    nearest = np.round(np.mod(arg, 2 * np.pi) / (2 * np.pi) * 1024).astype(int) % 1024
-    q_old = g._correlation(0.0, 1024)[nearest].T.reshape(1, n, 1, -1)
-    old, _ = g._decode(q_old, f)
-    assert np.abs(old[0, 0] - d).max() > 3e-3  # the artefact this test guards against
-
-
-def test_generator_cyclic_truth_is_the_decoded_peak_to_peak():
-    g = _generator()
-    f, n = 20e6, 4
-    r = g.C_AIR / (2 * f)
-    d = np.linspace(0.0, r, 4096, endpoint=False)
-    arg = 4 * np.pi * f * d[:, None] / g.C_AIR + 2 * np.pi * np.arange(n)[None] / n
-    q = g._wave(g._correlation(0.04), arg).T.reshape(1, n, 1, -1)
-    depth, _ = g._decode(q, f)
-    err = np.mod(depth[0, 0] - d + r / 2, r) - r / 2
-    assert math.isclose(err.max() - err.min(), g._cyclic_truth(0.04, f, n), rel_tol=0.02)
-    assert err.max() - err.min() > 5e-3  # 8.5 mm p-p at share 0.04
-
-
 def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
     # predict() relays the two cached unit images once and scales them (the relay is linear in
     # the samples); it must equal Multipath.apply on the photons' samples, gradient included
@@ -149,7 +108,7 @@ def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
 
     import torch
 
-    from tof_fpn_torch.diagnosis import model as M
+    from tof_fpn_torch.diagnosis.terms import multipath as M
     from tof_fpn_torch.sim import Camera, Multipath, SimState, synthetic_scene
     from tof_fpn_torch.sim.readout import Photons
 
@@ -172,7 +131,7 @@ def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
         samples = (act + amb * 0.8) * resp
         state = SimState(cam, scene, samples, None)
         if cached:
-            out = M._multipath(term, state, (act, amb), ("test",), 0.8, resp).samples
+            out = M.relay_cached(term, state, (act, amb), ("test",), 0.8, resp).samples
         else:
             out = term.apply(state).samples
         (g_resp, g_relay) = torch.autograd.grad(out.sum(), (resp, relay))

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from tof_fpn_torch import constants as K
-from tof_fpn_torch.analysis.calibrate import FixedPattern, calibrate_fixed_pattern
+from tof_fpn_torch.analysis.calibrate import MIN_PIXEL_FRAMES, calibrate_fixed_pattern
+from tof_fpn_torch.clean.pattern import read_pattern, save_pattern
 from tof_fpn_torch.export import export_onnx, export_torchscript
 from tof_fpn_torch.runtime import FixedPatternCorrection
 from tof_fpn_torch.runtime._destripe_core import highpass
@@ -67,9 +68,9 @@ def test_recovers_column_row_and_pixel_offsets(pattern):
 
 
 def test_pixel_offsets_need_flat_field_and_frames(pattern):
-    frames, _ = _flat_field(pattern, frames=K.CALIBRATION_MIN_PIXEL_FRAMES - 1)
+    frames, _ = _flat_field(pattern, frames=MIN_PIXEL_FRAMES - 1)
     assert calibrate_fixed_pattern(frames, flat_field=True).pixel_offset is None
-    frames, _ = _flat_field(pattern, frames=K.CALIBRATION_MIN_PIXEL_FRAMES)
+    frames, _ = _flat_field(pattern, frames=MIN_PIXEL_FRAMES)
     assert calibrate_fixed_pattern(frames).pixel_offset is None
     assert calibrate_fixed_pattern(frames, flat_field=True).pixel_offset is not None
 
@@ -94,8 +95,8 @@ def test_column_gain_from_two_distances(pattern):
 def test_save_load_roundtrip_and_numpy_reads_it(tmp_path, pattern):
     frames, _ = _flat_field(pattern)
     fp = calibrate_fixed_pattern(frames, flat_field=True)
-    path = fp.save(tmp_path / "sub" / "pattern.npz")
-    back = FixedPattern.load(path)
+    path = save_pattern(fp, tmp_path / "sub" / "pattern.npz")
+    back = read_pattern(path)
     for name in ("column_offset", "row_offset", "pixel_offset", "column_se"):
         assert torch.equal(getattr(back, name), getattr(fp, name)), name
     assert back.column_gain is None and back.frames == fp.frames and back.levels == fp.levels
@@ -108,7 +109,7 @@ def test_save_load_roundtrip_and_numpy_reads_it(tmp_path, pattern):
     bad = tmp_path / "bad.npz"
     np.savez(bad, column_offset=np.zeros(3))
     with pytest.raises(ValueError, match="not a fixed-pattern file: missing"):
-        FixedPattern.load(bad)
+        read_pattern(bad)
 
 
 def test_correction_formula_and_invalid_pixels():

@@ -1,5 +1,5 @@
-"""The file layer's place in the layers: importing it loads no simulator and no PyAV (PyAV is
-imported when a Matroska file is read); the package's lazy index reaches it."""
+"""The file layer's place in the layers: importing it loads no simulator, no PyAV and no rosbags
+(imported when a Matroska file or a bag is read); the package's lazy index reaches it."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ REPO = Path(__file__).resolve().parents[1]
 def test_importing_io_loads_no_simulator_and_no_pyav():
     code = (
         "import sys, tof_fpn_torch.io; "
-        "print([m for m in sys.modules if m.split('.')[0] == 'av' "
+        "print([m for m in sys.modules if m.split('.')[0] in ('av', 'rosbags') "
         "or m.startswith(('tof_fpn_torch.sim', 'tof_fpn_torch.design', 'tof_fpn_torch.build'))])"
     )
     out = subprocess.run(

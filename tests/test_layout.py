@@ -3,7 +3,8 @@
 - which package may import which (the run-time layers import torch, kornia, the standard library
   and the constants only; nothing imports upward);
 - importing the run-time package loads no SciPy, matplotlib or offline layer;
-- no file of the package over 400 lines;
+- no file of the package over 400 lines, no function over 80 (unless its docstring says why it
+  "cannot be split");
 - no number of the paper written anywhere but ``tof_fpn_torch/constants.py``.
 """
 
@@ -30,16 +31,9 @@ ALLOWED: dict[str, set[str]] = {
     "build": {"runtime", "design", "analysis", "denoise", "cameras"},
     "cameras": set(),
     "plotting": set(),
-    "experiments": {
-        "runtime",
-        "design",
-        "analysis",
-        "denoise",
-        "sim",
-        "build",
-        "plotting",
-        "cameras",
-    },
+    # the paper's synthetic test data and the demo on it (the reproduction is in benchmarks/)
+    "paper_data": {"runtime", "design", "analysis", "denoise", "sim", "build", "cameras"},
+    "demo": {"runtime", "design", "analysis", "denoise", "sim", "build", "plotting", "paper_data"},
     "export": {"runtime"},
     "learn": {
         "runtime",
@@ -56,7 +50,7 @@ ALLOWED: dict[str, set[str]] = {
     # camera profile names
     "io": {"runtime", "cameras"},
     # tof-fpn clean: the pipeline over files (docs/clean.md)
-    "clean": {"runtime", "build", "denoise", "io", "cameras", "analysis"},
+    "clean": {"runtime", "build", "denoise", "io", "cameras", "analysis", "plotting"},
     # sim vs. recording (issue 10): reads recordings / scenes, runs the simulator, fits it
     "diagnosis": {
         "runtime",
@@ -75,7 +69,8 @@ ALLOWED: dict[str, set[str]] = {
         "denoise",
         "sim",
         "build",
-        "experiments",
+        "demo",
+        "paper_data",
         "export",
         "plotting",
         "cameras",
@@ -94,7 +89,7 @@ THIRD_PARTY: dict[str, set[str]] = {
     "sim": {"torch"},
     "plotting": {"matplotlib"},
     "cameras": set(),
-    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av", "PIL"},
+    "io": {"torch", "numpy", "imageio", "tifffile", "h5py", "av", "PIL", "rosbags"},
     "clean": {"torch", "numpy", "tqdm", "ray", "tomli"},
     "diagnosis": {"torch", "numpy"},
 }
@@ -173,7 +168,7 @@ def test_importing_the_runtime_loads_no_offline_code():
         "import sys, tof_fpn_torch.runtime, tof_fpn_torch.denoise; "
         "bad = [m for m in sys.modules if m.split('.')[0] in ('scipy', 'matplotlib') "
         "or m.startswith(('tof_fpn_torch.design', 'tof_fpn_torch.analysis', 'tof_fpn_torch.sim', "
-        "'tof_fpn_torch.build', 'tof_fpn_torch.experiments'))]; print(bad)"
+        "'tof_fpn_torch.build', 'tof_fpn_torch.paper_data', 'tof_fpn_torch.demo'))]; print(bad)"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=PACKAGE.parent
@@ -281,3 +276,44 @@ def test_the_literal_scan_sees_a_copy(tmp_path):
     assert [v for v, *_ in found].count(7.5) == 1  # the docstring's 7.5 is not code
     assert any(math.isclose(v, 2 * math.pi / 3) for v, *_ in found)
     assert sorted(d for v, _, _, d in found if v == 0.14) == [False, True]  # body / default
+
+
+#: functions over 80 lines in files that other people were changing when the check was added (the
+#: diagnosis, the experiments, ``tof-fpn clean``'s run and ``tof-fpn reproduce``): listed (the
+#: check is an expected failure naming them), not failed, until those changes land; remove an
+#: entry once its function is split
+MAX_FUNCTION_LINES = 80
+
+
+def _long_functions(path: Path, root: Path = PACKAGE) -> dict[str, int]:
+    """``"file::function" -> lines`` for the functions (and methods) of ``path`` longer than
+    :data:`MAX_FUNCTION_LINES` (decorators to the last line) whose docstring does not say why
+    they "cannot be split"."""
+    tree = ast.parse(path.read_text())
+    out = {}
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            first = min([node.lineno, *(d.lineno for d in node.decorator_list)])
+            n = node.end_lineno - first + 1
+            doc = ast.get_docstring(node) or ""
+            if n > MAX_FUNCTION_LINES and "cannot be split" not in " ".join(doc.split()):
+                out[f"{path.relative_to(root).as_posix()}::{node.name}"] = n
+    return out
+
+
+def test_no_function_over_80_lines():
+    long: dict[str, int] = {}
+    for path in _sources():
+        long.update(_long_functions(path))
+    new = sorted(f"{k} ({v} lines)" for k, v in long.items())
+    assert not new, "split these functions (or say why they cannot be split):\n" + "\n".join(new)
+
+
+def test_the_function_length_check_sees_one(tmp_path):
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES))
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        f'def long():\n{body}\n\ndef kernel():\n    """A TorchScript kernel: it cannot\n'
+        f'    be split (one fused loop)."""\n{body}\n\ndef short():\n    return 1\n'
+    )
+    assert _long_functions(probe, tmp_path) == {"probe.py::long": MAX_FUNCTION_LINES + 1}

@@ -1,30 +1,15 @@
-"""Never hurts (issue 8): stripe-free frames of many sizes come out as they went in; striped ones
-are improved (the positive control, so "unchanged" is not the only answer)."""
+"""Never hurts: striped frames are improved where they should be (the positive control of the
+stripe-free runs: benchmarks/tests/test_bench_never_hurts.py and tests/test_clean_real_cameras.py)."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
-import pytest
 import torch
 
 from tof_fpn_torch.analysis.metrics import psnr
 from tof_fpn_torch.build import suppression_from_data, suppression_from_design
 from tof_fpn_torch.sim import DepthFPN, synthetic_scene
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_never_hurts.py"
-
-
-def test_stripe_free_frames_of_many_sizes_are_left_alone():
-    spec = importlib.util.spec_from_file_location("bench_never_hurts", SCRIPT)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    res = bench.run(bench.QUICK_SIZES)
-    assert res["frames"] == 2 * 2 * len(bench.NOISE) * len(bench.QUICK_SIZES)
-    assert res["worst_psnr_change_db"] < 0.1, res["rows"]
-    assert res["worst_mean_change"] < 5e-4, res["rows"]
 
 
 def test_striped_frames_are_improved_by_both_stages():
@@ -65,17 +50,26 @@ def test_odd_widths_do_not_double_the_depth():
         assert float((y - 2.0).std()) < 0.5 * float((x - 2.0).std())
 
 
-def test_from_data_measures_its_thresholds_on_noisy_frames():
-    """Table I's FPN + noise input: the thresholds fusion_from_data measures are the paper's 70 and
-    350 (within the seeds' spread), and the stage it builds gains as the paper's does."""
-    from tof_fpn_torch.experiments.common import make_synthetic_data
+def test_from_data_fits_its_fusion_to_the_stripes_on_noisy_frames():
+    """Table I's FPN + noise input (the paper's eq. (10) stripes, strongest at low amplitude): the
+    fusion fitted to the measured stripes gains at least what the best of a grid of design stages
+    chosen by the truth gains (measured: 4.13 dB against 4.01; the paper's 70 / 350: 4.00)."""
+    import itertools
+
+    from tof_fpn_torch.paper_data import make_synthetic_data
 
     data = make_synthetic_data((0,), 204)
     x, gt, amp = data.inputs["fpn+noise"], data.depth, data.amplitude
+    p0 = float(psnr(x, gt))
     stage = suppression_from_data(x, amp)
-    assert 40 < stage.fusion.low < 110  # seed 0 has the largest noise (lambda), 70 for the mean
-    assert stage.fusion.high == pytest.approx(5 * stage.fusion.low, rel=1e-12)
-    assert float(psnr(stage(x, amp), gt)) > float(psnr(x, gt)) + 3.0
+    gain = float(psnr(stage(x, amp), gt)) - p0
+    grid = itertools.product((0.0, 35.0, 70.0, 140.0), (35.0, 140.0, 280.0), (0.0, 0.2, 0.5))
+    best = max(
+        float(psnr(suppression_from_design(low=lo, high=lo + span, floor=f)(x, amp), gt)) - p0
+        for lo, span, f in grid
+    )
+    assert best > 3.0
+    assert gain >= 0.95 * best, (gain, best, stage.fusion)
 
 
 def test_from_data_removes_the_adi_walls_broadband_column_offsets(real_data):
@@ -83,23 +77,21 @@ def test_from_data_removes_the_adi_walls_broadband_column_offsets(real_data):
     ``from_data`` picks the destriper (columns only), the column-stripe energy away from the cable
     edge and the clutter falls >= 10 dB (measured 14.5) and the low-pass depth moves < 0.5 mm RMS
     (measured 0.16); the notch stage alone removed almost nothing of it."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(
-        "bench_destripe", SCRIPT.parent / "bench_destripe.py"
-    )
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
     from tof_fpn_torch.analysis import column_stripe_energy, lowpass_change
+    from tof_fpn_torch.analysis.stripe_energy import structure_mask
 
     depth, ir = real_data.adi_wall()
     stage = suppression_from_data(depth, ir)
     assert stage.filter is None and stage.destripe is not None and stage.destripe.dims == [-1]
     out = stage(depth, ir)
-    region, band = bench.adi_region(depth)
+    # docs/destripe.md's region: rows 0..415 (halves at 208), columns 8..503, away from the cable
+    region = structure_mask(depth, 4.0, width=15, dilate=6)  # depth in mm here
+    region[..., 416:, :] = False
+    region[..., :8] = False
+    region[..., -8:] = False
 
     def energy(x):
-        return float(column_stripe_energy(x, region, width=9, split=bench.ADI_SPLIT).covariance)
+        return float(column_stripe_energy(x, region, width=9, split=208).covariance)
 
     assert 10 * math.log10(energy(depth) / max(energy(out), 1e-12)) >= 10.0
     assert float(lowpass_change(depth, out)) < 0.5

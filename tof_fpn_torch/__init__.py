@@ -6,13 +6,19 @@ Layers (docs/architecture.md), each a subpackage that may import only the ones b
 - :mod:`.runtime` -- the torch-only stage: :class:`FPNFilter`, :class:`AmplitudeFusion`,
   :class:`FPNSuppression`, and the validity rule :func:`valid_mask`;
 - :mod:`.denoise` -- torch-only denoisers (:class:`NonLocalMeans`);
-- :mod:`.design` -- offline NumPy/SciPy filter design (:func:`design_fpn`);
+- :mod:`.design` -- offline NumPy filter design (:func:`design_fpn`);
 - :mod:`.analysis` -- metrics (:func:`psnr`) and stripe estimation (:func:`estimate_stripes`);
 - :mod:`.sim` -- the raw-level simulator;
 - :mod:`.build` -- run-time modules from a design or from data (:func:`suppression_from_design`);
 - :mod:`.io` -- the file layer: camera files, the recording / scene formats, :class:`FrameDataset`;
 - :mod:`.clean` -- ``tof-fpn clean``: the pipeline over files, resumable, local or Ray;
-- :mod:`.experiments`, :mod:`.export`, :mod:`.cli` -- the paper's experiments, export, ``tof-fpn``.
+- :mod:`.learn` -- the stage in front of a learned network; :mod:`.diagnosis` -- simulation vs.
+  recording (``tof-fpn diagnose``);
+- :mod:`.paper_data`, :mod:`.demo` -- the paper's synthetic test data and ``tof-fpn demo``;
+- :mod:`.export`, :mod:`.cli` -- TorchScript / ONNX export, ``tof-fpn``.
+
+The paper's reproduction, the benchmarks and the training experiment live beside the package
+(``benchmarks/``, ``examples/`` in the repository), not in it.
 
 The names below are loaded on first use, so ``import tof_fpn_torch.runtime`` loads torch only.
 """
@@ -70,11 +76,14 @@ _SUBPACKAGES = (
     "clean",
     "cli",
     "constants",
+    "demo",
     "denoise",
     "design",
-    "experiments",
+    "diagnosis",
     "export",
     "io",
+    "learn",
+    "paper_data",
     "runtime",
     "sim",
 )

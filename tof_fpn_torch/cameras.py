@@ -61,7 +61,7 @@ PROFILES: dict[str, CameraProfile] = {
         16.0,
         80.0,
         "fusion_from_data on the public wall capture (analogdevicesinc/ToF, out_depth_/out_ir_): "
-        "k = 221 mm x AB, median depth 347 mm; `python scripts/camera_profiles.py`. The "
+        "k = 221 mm x AB, median depth 347 mm; `python benchmarks/camera_profiles.py`. The "
         "office capture (another mode) gives 5x lower k: thresholds depend on the mode",
     ),
     "kinect_v2": CameraProfile(
@@ -82,7 +82,17 @@ PROFILES: dict[str, CameraProfile] = {
         13.5,
         "fusion_from_data on the public pyk4a recording (tests/assets/recording.mkv, read with "
         "tof_fpn_torch.io.read_azure_kinect_mkv; saturated IR 65535 left out): k = 0.161 m x IR, "
-        "median depth 1.49 m, one frame; `python scripts/camera_profiles.py`",
+        "median depth 1.49 m, one frame; `python benchmarks/camera_profiles.py`",
+    ),
+    "realsense": CameraProfile(
+        "realsense",
+        "Intel RealSense infrared image as recorded (Y8: 8-bit, Y16: 16-bit grey levels)",
+        "depth units of the recording (1 mm unless the bag states others)",
+        (),
+        None,
+        None,
+        "no RealSense capture with infrared measured here: use fusion_from_data. D400 depth is "
+        "active stereo and L515 depth is LiDAR, not continuous-wave ToF",
     ),
 }
 

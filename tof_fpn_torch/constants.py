@@ -1,10 +1,13 @@
-"""The paper's numbers and the package defaults, each written once (standard library only).
+"""The paper's numbers and the defaults shared across layers, each written once (standard library
+only).
 
 Georgiev, Bregovic, Gotchev, "Fixed-pattern noise suppression in low-sensing environment of
 Time-of-Flight devices", IEEE SAS 2015 (DOI 10.1109/SAS.2015.7133633). Every module reads these
-names; ``tests/test_layout.py`` fails if one of the values is written as a literal anywhere else in
-the package. TorchScript reads them as module attributes (``constants.D_MAX``), which it folds into
-constants; it cannot read bare module-level globals.
+names; ``tests/test_layout.py`` fails if one of the paper's values is written as a literal anywhere
+else in the package. A setting that one module uses lives beside its code, as a documented
+module-level default (e.g. ``FALSE_ALARM`` of :mod:`tof_fpn_torch.runtime.gate`). TorchScript reads
+these as module attributes (``constants.D_MAX``), which it folds into constants; it cannot read
+bare module-level globals (run-time modules pass their own settings as parameter defaults).
 """
 
 from __future__ import annotations
@@ -52,22 +55,11 @@ FUSION_LOW_RELATIVE_NOISE: float = 0.04
 FUSION_HIGH_RELATIVE_NOISE: float = 0.008
 
 # --- the stripe gate of the FPN stage (runtime/gate.py; beyond the paper) -----------------------
-#: False-alarm probability of the gate's line test, per notch frequency and image.
-GATE_FALSE_ALARM: float = 1e-3
-#: Reference frequencies the line test compares the notch frequency's power with.
-GATE_REFERENCES: int = 8
 #: Smallest stripe amplitude, in units of the per-pixel variation the notch sees besides stripes
 #: (noise, scene detail), that opens the gate (fully at 2x): a stripe whose power is under 1 % of
 #: that is not worth what a notch does to the scene. (The real ADI wall's 7 um row stripe at pi is
 #: at ~0.03; the paper's synthetic FPN at ~0.3.)
 GATE_MIN_STRIPE: float = 0.1
-#: Side of the window (pixels) of the local mean of the squared finest diagonal wavelet
-#: coefficients that caps the gate's per-pixel noise power (runtime/gate.py, noise_power).
-GATE_NOISE_WINDOW: int = 3
-#: The stripe gate closes where the stage's estimated benefit is at most this share of its
-#: estimated cost (and opens fully where the benefit exceeds the cost): runtime/gate.py,
-#: risk_shrinkage.
-GATE_RISK_FLOOR: float = 0.5
 
 # --- stripe detection (analysis/stripes.py) ---------------------------------------------------
 #: Largest false-alarm probability of a reported periodic stripe (whole searched band).
@@ -139,53 +131,25 @@ DESTRIPE_WIDTH: int = 31
 #: are scene structure (edges, bars, clutter), not stripes: the pilot replaces them in the means.
 DESTRIPE_CLIP: float = 3.0
 #: A column step (mean difference between neighbouring columns) further than this many robust
-#: sigmas (MAD) from the median step is a scene edge that most rows share, not a stripe: dropped ...
+#: sigmas (MAD) from the median step is a scene edge that most rows share, not a stripe: dropped
+#: (unless too many are: ``MAX_EDGE_SHARE`` of runtime/_destripe_core.py).
 DESTRIPE_STEP_CLIP: float = 5.0
-#: ... unless more than this share of the columns would be dropped: then they are a mode of the
-#: steps (periodic stripes such as the paper's at pi make them bimodal), not rare edges.
-DESTRIPE_MAX_EDGE_SHARE: float = 0.25
-#: The cross-validated shrinkage keeps a profile band only as far as the energy common to the top
-#: and the bottom half exceeds this many of its standard deviations without stripes (2.5: the
-#: largest value that keeps >= 10 dB on the real ADI wall; stripe-free scenes then change by
-#: < 0.1 dB, docs/destripe.md).
-DESTRIPE_NULL_Z: float = 2.5
 #: Rows of the strided subsample (half in each half of the frame) on which the robust scale and
 #: the pilot are computed.
 DESTRIPE_PILOT_ROWS: int = 32
 #: Window (columns) of ``shrink="local"``: the cross-validated factor is computed per window.
 DESTRIPE_LOCAL_WIDTH: int = 128
-#: :func:`~tof_fpn_torch.analysis.calibrate_fixed_pattern` calibrates per-pixel offsets (flat
-#: field) only from at least this many frames per group: a pixel's standard error is then at most
-#: a third of one frame's noise.
-CALIBRATION_MIN_PIXEL_FRAMES: int = 9
 
-#: :func:`~tof_fpn_torch.analysis.calibrate_complex_pattern`: a pixel brighter than this multiple of
-#: its frame's median amplitude is left out of the estimate (its scene texture is strongest and a
-#: read-out offset barely moves its depth: the error is ``|o| / A``); 2: measured best of 1.5 - 3 on
-#: the raw simulator (docs/destripe.md).
-COMPLEX_CAL_AMPLITUDE_CAP: float = 2.0
-#: ... the component of a pixel's column difference along its own phasor (where amplitude texture
-#: lies) is weighted ``1 - beta``, ``beta = A^2 / (A^2 + (k sigma)^2)`` with ``sigma`` the per-channel
-#: noise of ``z`` and ``k`` this value (2 - 5 measured equally good; 10 lets the painted wall of the
-#: bright planar scene in).
-COMPLEX_CAL_TEXTURE_K: float = 3.0
-#: ... ridge (share of the pixel count) on the 2 x 2 normal equations of each column pair: a
-#: direction seen by fewer pixels than this share (a column of one phase) is left at ~0.
-COMPLEX_CAL_RIDGE: float = 0.02
-#: ... width (columns) of the high-pass of the calibrated profile (at most a quarter of the line is
-#: used): wider than the single frame's ``DESTRIPE_WIDTH``, as T frames average the scene's slow
-#: column profile down (51 against 31 on the raw simulator: +0.14 dB over the 16 calibrations of
-#: docs/destripe.md, +0.5 dB at the darkest level, -0.1 dB on the bright planar scene).
-COMPLEX_CAL_WIDTH: int = 51
-
-# --- tof-fpn clean (tof_fpn_torch.clean) -------------------------------------------------------
-#: Files per group and frames per compute batch of ``tof-fpn clean``: the batches are fixed by the
-#: sorted file list, so that a resumed run or the Ray engine computes every frame in the same batch
-#: (batched torch kernels differ in the last bits between batch sizes).
-CLEAN_BATCH: int = 8
-#: Frames (the first in file order) on which ``auto`` / ``data`` stages of ``tof-fpn clean`` are
-#: measured when the run starts.
-CLEAN_CALIBRATION_FRAMES: int = 8
+# --- the simulator's multipath (sim/optics.py; the diagnosis profiles around them) ------------
+#: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
+#: view (deg) and near-field length (m), the step (px) between its source patches, raised so that
+#: at most ``MULTIPATH_MAX_SOURCES`` are used (used by sim/optics.py alone, but 300 is also the
+#: paper's LOW_SENSING_THRESHOLD, which tests/test_layout.py flags anywhere else; the step goes
+#: with it).
+MULTIPATH_FIELD_OF_VIEW_DEG: float = 70.0
+MULTIPATH_NEAR_FIELD_M: float = 1.0
+MULTIPATH_RELAY_STEP: int = 8
+MULTIPATH_MAX_SOURCES: int = 300
 
 # --- Table II (real-case data) and its protocol (Sec. IV-A, IV-C; issue 11) --------------------
 #: Integration times of Table II's low-sensing captures, s.
@@ -204,79 +168,3 @@ PAPER_TABLE2: dict[str, tuple[tuple[float, float], ...]] = {
     "bm3d": ((24.3, 28.4), (28.8, 31.4), (32.9, 35.4)),
     "sdct": ((24.4, 26.4), (26.2, 27.9), (27.8, 28.1)),
 }
-
-# --- diagnosis: simulation vs. recording (issue 10; tof_fpn_torch.diagnosis) --------------------
-#: Scales of the optimiser's variables: depth-like parameters move in mm steps, correlation
-#: harmonics in 1 % steps of the fundamental.
-DIAG_SCALE_DEPTH: float = 1e-3
-DIAG_SCALE_CYCLIC: float = 0.01
-#: Largest share of impulsive frame-pixels the mixture may fit.
-DIAG_MAX_IMPULSIVE_RATE: float = 0.5
-#: Pixels enter the depth likelihood where the predicted amplitude is at least this many times
-#: the noise of one component of (2/N) X_1 (below it the phase is far from Gaussian) ...
-DIAG_MIN_SNR_DEPTH: float = 5.0
-#: ... and the amplitude likelihood above this (the Rician mean and spread are used).
-DIAG_MIN_SNR_AMPLITUDE: float = 2.0
-#: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels.
-DIAG_SPLIT_BLOCK: int = 8
-#: Iterations of L-BFGS per fit.
-DIAG_FIT_ITERS: int = 40
-#: Family-wise false-alarm probability of the located statistics (Bonferroni over all of them).
-DIAG_ALPHA: float = 0.01
-#: Parametric-bootstrap recordings per null distribution.
-DIAG_BOOTSTRAP: int = 8
-#: Smallest null scale (bootstrap mean / df) a chi^2 statistic may get.
-DIAG_MIN_NULL_SCALE: float = 0.25
-#: A frame-pixel further than this many sigma from the model is a tail event.
-DIAG_TAIL_Z: float = 5.0
-#: A candidate term is named when its held-out log-likelihood gain is at least this many nats ...
-DIAG_MIN_GAIN: float = 10.0
-#: ... and it lowers the AIC on the fitting half by at least this much.
-DIAG_MIN_DAIC: float = 10.0
-#: Iterations of L-BFGS when a candidate term is fitted on the fitting half.
-DIAG_CANDIDATE_ITERS: int = 20
-#: Candidates whose held-out gain is within this share of the best are fitted on (up to
-#: ``DIAG_FIT_ITERS`` per round) before the ranking is taken.
-DIAG_CONTENDER_SHARE: float = 0.25
-#: quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
-#: which the saturation level starts (the clip must touch some samples, docs/diagnosis.md): a
-#: dense grid from the median to the 99.9th percentile, as a clip of many pixels predicts them
-#: to a fraction of their noise and the likelihood is sharp in the level
-DIAG_SATURATION_QUANTILES: tuple[float, ...] = tuple(1 - 0.5 * 0.002 ** (k / 23) for k in range(24))
-#: a pixel that the model moves to within this many depth sd of the wrap boundary (0 / R), its
-#: scene depth not that close, is predicted on the side where its readings are (same phase)
-DIAG_WRAP_BOUNDARY_SD: float = 4.0
-#: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
-#: view (deg), near-field length (m), the step (px) between its source patches, and how many
-#: relay matrices are kept
-MULTIPATH_FIELD_OF_VIEW_DEG: float = 70.0
-MULTIPATH_NEAR_FIELD_M: float = 1.0
-MULTIPATH_RELAY_STEP: int = 8
-MULTIPATH_MAX_SOURCES: int = 300
-RELAY_CACHE_SIZE: int = 2
-#: the diagnosis keeps the relay of its two unit images (2 x (1, N, H, W), small) for this many
-#: geometries: the grid of fields of view and near fields below, tried in every ranking round
-DIAG_RELAY_CACHE_SIZE: int = 16
-#: the diagnosis profiles the scene relay over these fields of view (deg) and near fields (m)
-DIAG_MULTIPATH_FIELDS_OF_VIEW: tuple[float, ...] = (50.0, 70.0, 90.0)
-DIAG_MULTIPATH_NEAR_FIELDS: tuple[float, ...] = (0.3, 1.0, 3.0)
-#: extra paths (shares of the unambiguous range) at which the multipath strength starts
-DIAG_MULTIPATH_PATH_SHARES: tuple[float, ...] = tuple((k + 0.5) / 8 for k in range(8))
-#: After a term is added, the next round re-fits only the candidates whose held-out gain was at
-#: least this many nats (at most ``DIAG_RETRY_MAX`` of them, best first).
-DIAG_RETRY_GAIN: float = 1.0
-DIAG_RETRY_MAX: int = 6
-#: A fit stops when a further round (fresh Hessian, L-BFGS) gains less than this many nats, or
-#: after ``DIAG_FIT_ROUNDS`` rounds.
-DIAG_FIT_TOL: float = 0.5
-DIAG_FIT_ROUNDS: int = 4
-#: Pixels whose temporal mean or spread is within this many sigma of a grossly misfitting model
-#: give the robust starting values that every candidate term is also tried from.
-DIAG_INLIER_Z: float = 4.0
-#: Resolution of the diagnosis figures.
-DIAG_FIGURE_DPI: int = 110
-#: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
-#: out of the likelihood (the smoothing cannot follow the edge there).
-DIAG_EDGE_MARGIN: int = 2
-#: Starting rms of the per-pixel amplitude texture of the estimated-scene baseline.
-DIAG_TEXTURE_RMS: float = 0.02

@@ -78,6 +78,45 @@ def _require_onnx() -> None:
         )
 
 
+def _check_onnx_exportable(module: nn.Module) -> None:
+    """ValueError naming the reason when a submodule cannot be traced by ``torch.export``."""
+    from .runtime import Destripe
+
+    if any(isinstance(m, Destripe) for m in module.modules()):
+        raise ValueError(
+            "a Destripe module estimates its offsets from each frame with data-dependent robust "
+            "statistics, which torch.export cannot trace: export it with TorchScript, or calibrate "
+            "a fixed pattern (tof_fpn_torch.analysis.calibrate_fixed_pattern) and export its "
+            "FixedPatternCorrection, which ONNX takes"
+        )
+    for m in module.modules():  # a module that cannot be traced says so (``onnx_unsupported``)
+        reason = getattr(type(m), "onnx_unsupported", None)
+        if reason:
+            raise ValueError(f"cannot export {type(m).__name__} to ONNX: {reason}")
+
+
+def _input_names(model: nn.Module) -> list[str]:
+    """The graph's inputs: ``x`` of an :class:`FPNFilter`, else ``depth`` and, when the module
+    needs one (``needs_amplitude``, True when it does not say), ``amplitude``."""
+    if isinstance(model, FPNFilter):
+        return ["x"]
+    if getattr(model, "needs_amplitude", True):
+        return ["depth", "amplitude"]
+    return ["depth"]
+
+
+def _default_inputs(names: list[str]) -> tuple[torch.Tensor, ...]:
+    """(2, 1, 64, 80) float32 example inputs, seeded: depth in [0.5, 1.5), amplitude in
+    [0.5, LOW_SENSING_THRESHOLD + 0.5)."""
+    gen = torch.Generator().manual_seed(0)
+    return tuple(
+        torch.rand(2, 1, 64, 80, generator=gen)
+        * (K.LOW_SENSING_THRESHOLD if n == "amplitude" else 1.0)
+        + 0.5
+        for n in names
+    )
+
+
 def export_onnx(
     module: nn.Module,
     path: str | Path,
@@ -104,35 +143,11 @@ def export_onnx(
     _require_onnx()
     import onnx
 
-    from .runtime import Destripe
-
-    if any(isinstance(m, Destripe) for m in module.modules()):
-        raise ValueError(
-            "a Destripe module estimates its offsets from each frame with data-dependent robust "
-            "statistics, which torch.export cannot trace: export it with TorchScript, or calibrate "
-            "a fixed pattern (tof_fpn_torch.analysis.calibrate_fixed_pattern) and export its "
-            "FixedPatternCorrection, which ONNX takes"
-        )
-    for m in module.modules():  # a module that cannot be traced says so (``onnx_unsupported``)
-        reason = getattr(type(m), "onnx_unsupported", None)
-        if reason:
-            raise ValueError(f"cannot export {type(m).__name__} to ONNX: {reason}")
-
+    _check_onnx_exportable(module)
     model = freeze(copy.deepcopy(module)).eval()
-    if isinstance(model, FPNFilter):
-        names = ["x"]
-    elif getattr(model, "needs_amplitude", True):
-        names = ["depth", "amplitude"]
-    else:
-        names = ["depth"]
+    names = _input_names(model)
     if example_inputs is None:
-        gen = torch.Generator().manual_seed(0)
-        example_inputs = tuple(
-            torch.rand(2, 1, 64, 80, generator=gen)
-            * (K.LOW_SENSING_THRESHOLD if n == "amplitude" else 1.0)
-            + 0.5
-            for n in names
-        )
+        example_inputs = _default_inputs(names)
     if len(example_inputs) != len(names):
         raise ValueError(
             f"example_inputs must hold {len(names)} tensor(s) {names}, got {len(example_inputs)}"

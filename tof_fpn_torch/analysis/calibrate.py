@@ -26,24 +26,19 @@ offsets of a general scene (confounded with scene detail); gains from one distan
 fixed scene is a fixed offset, which is how it is then corrected, exactly at that distance); depth-
 or amplitude-dependent errors other than the linear column gain.
 
-Files (:meth:`FixedPattern.save` / :meth:`FixedPattern.load`): an uncompressed ``.npz`` readable
-with ``numpy.load(path)`` (no pickle), arrays float64 little-endian: ``column_offset`` (W,),
-``row_offset`` (H,), ``pixel_offset`` (H, W) (all zeros when not calibrated), ``column_gain`` (W,)
-(all ones when not calibrated), ``column_se`` (W,) and ``meta_json`` (uint8, the UTF-8 JSON of the
-other fields: ``frames``, ``groups``, ``levels``, ``width``, ``flat_field``, ``has_pixel``,
-``has_gain``, ``format``). Written with the standard library only (this layer imports no NumPy).
+Files: :meth:`FixedPattern.to_arrays` / :meth:`FixedPattern.from_arrays` convert the pattern to
+and from plain tensors and JSON-able fields (``frames``, ``groups``, ``levels``, ``width``,
+``flat_field``, ``has_pixel``, ``has_gain``); the file layer stores them
+(:mod:`tof_fpn_torch.io.patterns`, an ``.npz`` that ``numpy.load`` reads) and
+:func:`tof_fpn_torch.clean.pattern.save_pattern` / :func:`~tof_fpn_torch.clean.pattern.read_pattern`
+join the two.
 """
 
 from __future__ import annotations
 
-import ast
-import json
 import math
-import struct
-import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import torch
 import torch.nn.functional as F
@@ -51,11 +46,14 @@ import torch.nn.functional as F
 from .. import constants as K
 from ..runtime._destripe_core import column_offsets
 from ..runtime.fixed_pattern import FixedPatternCorrection
+from ..runtime.noise import mad_to_sigma
 from ..runtime.validity import valid_mask
 
-__all__ = ["FixedPattern", "calibrate_fixed_pattern", "temporal_mean"]
+__all__ = ["MIN_PIXEL_FRAMES", "FixedPattern", "calibrate_fixed_pattern", "temporal_mean"]
 
-_FORMAT = "tof_fpn_torch.fixed_pattern/1"
+#: :func:`calibrate_fixed_pattern` calibrates per-pixel offsets (flat field) only from at least this
+#: many frames per group: a pixel's standard error is then at most a third of one frame's noise.
+MIN_PIXEL_FRAMES: int = 9
 
 
 @dataclass
@@ -102,11 +100,12 @@ class FixedPattern:
             height=self.shape[0],
         )
 
-    def save(self, path: str | Path) -> Path:
-        """Write the ``.npz`` described in the module docstring (parent directories created)."""
+    def to_arrays(self) -> tuple[dict[str, torch.Tensor], dict]:
+        """``(arrays, meta)``: the pattern as float64 tensors (``pixel_offset`` zeros and
+        ``column_gain`` ones when not calibrated) and its other fields as JSON-able values, what
+        :func:`tof_fpn_torch.io.patterns.write_pattern_file` stores (module docstring)."""
         h, w = self.shape
         meta = {
-            "format": _FORMAT,
             "frames": int(self.frames),
             "groups": int(self.groups),
             "levels": [float(v) for v in self.levels],
@@ -122,26 +121,12 @@ class FixedPattern:
             "column_gain": torch.ones(w) if self.column_gain is None else self.column_gain,
             "column_se": torch.zeros(w) if self.column_se is None else self.column_se,
         }
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as z:
-            for name, t in arrays.items():
-                z.writestr(f"{name}.npy", _npy(t.detach().double().cpu()))
-            z.writestr("meta_json.npy", _npy_bytes(json.dumps(meta).encode()))
-        return path
+        return {k: t.detach().double().cpu() for k, t in arrays.items()}, meta
 
     @classmethod
-    def load(cls, path: str | Path) -> FixedPattern:
-        """Read a file written by :meth:`save`."""
-        with zipfile.ZipFile(Path(path)) as z:
-            arrays = {n[:-4]: _read_npy(z.read(n)) for n in z.namelist() if n.endswith(".npy")}
-        missing = {"column_offset", "row_offset", "pixel_offset", "column_gain", "meta_json"}
-        missing -= set(arrays)
-        if missing:
-            raise ValueError(f"{path} is not a fixed-pattern file: missing {sorted(missing)}")
-        meta = json.loads(bytes(arrays["meta_json"].to(torch.uint8).tolist()).decode())
-        if meta.get("format") != _FORMAT:
-            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {_FORMAT!r}")
+    def from_arrays(cls, arrays: dict[str, torch.Tensor], meta: dict) -> FixedPattern:
+        """The pattern of :meth:`to_arrays`' ``(arrays, meta)`` (as
+        :func:`tof_fpn_torch.io.patterns.read_pattern_file` returns them)."""
         return cls(
             column_offset=arrays["column_offset"],
             row_offset=arrays["row_offset"],
@@ -156,45 +141,6 @@ class FixedPattern:
         )
 
 
-def _npy_header(descr: str, shape: tuple[int, ...]) -> bytes:
-    dims = "(" + "".join(f"{d}," for d in shape) + ")" if len(shape) != 1 else f"({shape[0]},)"
-    text = f"{{'descr': '{descr}', 'fortran_order': False, 'shape': {dims}, }}"
-    pad = 64 - (10 + len(text) + 1) % 64
-    text = text + " " * (pad % 64) + "\n"
-    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text)) + text.encode("latin1")
-
-
-def _npy(t: torch.Tensor) -> bytes:
-    """A float64 ``.npy`` (format 1.0) of ``t``."""
-    flat = t.contiguous().reshape(-1).tolist()
-    return _npy_header("<f8", tuple(t.shape)) + struct.pack(f"<{len(flat)}d", *flat)
-
-
-def _npy_bytes(data: bytes) -> bytes:
-    return _npy_header("|u1", (len(data),)) + data
-
-
-def _read_npy(raw: bytes) -> torch.Tensor:
-    if raw[:6] != b"\x93NUMPY":
-        raise ValueError("not a .npy entry")
-    major = raw[6]
-    if major == 1:
-        (n,) = struct.unpack("<H", raw[8:10])
-        start = 10
-    else:
-        (n,) = struct.unpack("<I", raw[8:12])
-        start = 12
-    header = ast.literal_eval(raw[start : start + n].decode("latin1"))
-    if header["fortran_order"]:
-        raise ValueError("Fortran-ordered arrays are not supported")
-    dtypes = {"<f8": torch.float64, "<f4": torch.float32, "|u1": torch.uint8, "<i8": torch.int64}
-    if header["descr"] not in dtypes:
-        raise ValueError(f"unsupported dtype {header['descr']!r}")
-    body = bytearray(raw[start + n :])
-    t = torch.frombuffer(body, dtype=dtypes[header["descr"]]) if body else torch.zeros(0)
-    return t.reshape(header["shape"]).clone()
-
-
 def temporal_mean(
     frames: torch.Tensor, amplitudes: torch.Tensor | None = None, clip: float = K.DESTRIPE_CLIP
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -206,7 +152,7 @@ def temporal_mean(
     v = valid_mask(frames, amplitudes)
     x = torch.where(v, frames.double(), math.nan)
     med = torch.nanmedian(x, dim=0, keepdim=True).values
-    mad = torch.nanmedian((x - med).abs(), dim=0, keepdim=True).values * K.MAD_TO_SIGMA
+    mad = mad_to_sigma(torch.nanmedian((x - med).abs(), dim=0, keepdim=True).values, 1)
     inl = v & ((x - med).abs() <= clip * mad.clamp_min(1e-12) + 1e-12 * med.abs())
     inl = inl | (v & (mad <= 0))
     n = inl.sum(0, keepdim=True).double()
@@ -264,7 +210,7 @@ def calibrate_fixed_pattern(
     flat_field: bool = False,
     width: int = K.DESTRIPE_WIDTH,
     clip: float = K.DESTRIPE_CLIP,
-    min_pixel_frames: int = K.CALIBRATION_MIN_PIXEL_FRAMES,
+    min_pixel_frames: int = MIN_PIXEL_FRAMES,
 ) -> FixedPattern:
     """Estimate the fixed pattern of (T, 1, H, W) ``frames`` of a static scene (module docstring).
 

@@ -36,20 +36,18 @@ the component of an offset along the phasor of a column that has one phase in ev
 not move that column's depth); a vertical amplitude texture of dark pixels in the same columns of
 every frame.
 
-File (:meth:`ComplexPattern.save`): an uncompressed ``.npz`` that ``numpy.load(path)`` reads without
-pickle: float64 ``column_offset_re``, ``column_offset_im`` (W,), ``row_offset_re``,
-``row_offset_im`` (H,) (zeros when not calibrated), ``column_pixels`` (W,) (difference pairs used per
-column) and ``meta_json`` (uint8 UTF-8 JSON: ``format``, ``modulation_frequency_hz``, ``frames``,
-``width``, ``amplitude_cap``, ``texture_k``, ``has_rows``, ``noise_sigma``, ``shrink_factor``).
+File: :meth:`ComplexPattern.to_arrays` / :meth:`ComplexPattern.from_arrays` convert the pattern
+to and from plain tensors (``column_offset_re``, ``column_offset_im``, ``row_offset_re``,
+``row_offset_im``, ``column_pixels``) and JSON-able fields; the file layer stores them
+(:mod:`tof_fpn_torch.io.patterns`, an ``.npz`` that ``numpy.load`` reads) and
+:func:`tof_fpn_torch.clean.pattern.save_pattern` / :func:`~tof_fpn_torch.clean.pattern.read_pattern`
+join the two.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import zipfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 
@@ -57,12 +55,35 @@ from .. import constants as K
 from ..runtime import _destripe_core as core
 from ..runtime._phasor import metres_per_radian, phasor
 from ..runtime.complex_pattern import ComplexPatternCorrection
+from ..runtime.noise import clipped_rms_scale, scale_moment
 from ..runtime.validity import valid_mask
-from .calibrate import _npy, _npy_bytes, _read_npy
 
-__all__ = ["ComplexPattern", "calibrate_complex_pattern"]
+__all__ = [
+    "AMPLITUDE_CAP",
+    "RIDGE",
+    "TEXTURE_K",
+    "WIDTH",
+    "ComplexPattern",
+    "calibrate_complex_pattern",
+]
 
-_FORMAT = "tof_fpn_torch.complex_pattern/1"
+#: Width (columns) of the high-pass of the calibrated profile (at most a quarter of the line is
+#: used): wider than the single frame's ``DESTRIPE_WIDTH``, as T frames average the scene's slow
+#: column profile down (51 against 31 on the raw simulator: +0.14 dB over the 16 calibrations of
+#: docs/destripe.md, +0.5 dB at the darkest level, -0.1 dB on the bright planar scene).
+WIDTH: int = 51
+#: A pixel brighter than this multiple of its frame's median amplitude is left out of the estimate
+#: (its scene texture is strongest and a read-out offset barely moves its depth: the error is
+#: ``|o| / A``); 2: measured best of 1.5 - 3 on the raw simulator (docs/destripe.md).
+AMPLITUDE_CAP: float = 2.0
+#: The component of a pixel's column difference along its own phasor (where amplitude texture
+#: lies) is weighted ``1 - beta``, ``beta = A^2 / (A^2 + (k sigma)^2)`` with ``sigma`` the
+#: per-channel noise of ``z`` and ``k`` this value (2 - 5 measured equally good; 10 lets the
+#: painted wall of the bright planar scene in).
+TEXTURE_K: float = 3.0
+#: Ridge (share of the pixel count) on the 2 x 2 normal equations of each column pair: a direction
+#: seen by fewer pixels than this share (a column of one phase) is left at ~0.
+RIDGE: float = 0.02
 
 
 @dataclass
@@ -86,9 +107,9 @@ class ComplexPattern:
     row_offset_im: torch.Tensor | None = None
     column_pixels: torch.Tensor | None = None
     frames: int = 0
-    width: int = K.COMPLEX_CAL_WIDTH
-    amplitude_cap: float = K.COMPLEX_CAL_AMPLITUDE_CAP
-    texture_k: float = K.COMPLEX_CAL_TEXTURE_K
+    width: int = WIDTH
+    amplitude_cap: float = AMPLITUDE_CAP
+    texture_k: float = TEXTURE_K
     noise_sigma: float = 0.0
     shrink_factor: float = 0.0
     height: int = -1
@@ -110,13 +131,14 @@ class ComplexPattern:
             wrap=wrap,
         )
 
-    def save(self, path: str | Path) -> Path:
-        """Write the ``.npz`` described in the module docstring (parent directories created)."""
+    def to_arrays(self) -> tuple[dict[str, torch.Tensor], dict]:
+        """``(arrays, meta)``: the pattern as float64 tensors (rows zeros when not calibrated)
+        and its other fields as JSON-able values, what
+        :func:`tof_fpn_torch.io.patterns.write_pattern_file` stores (module docstring)."""
         w = self.column_offset_re.numel()
         h = max(self.height, 0)
         has_rows = self.row_offset_re is not None
         meta = {
-            "format": _FORMAT,
             "modulation_frequency_hz": float(self.modulation_frequency_hz),
             "frames": int(self.frames),
             "height": int(self.height),
@@ -135,26 +157,12 @@ class ComplexPattern:
             "row_offset_im": self.row_offset_im if has_rows else zeros,
             "column_pixels": torch.zeros(w) if self.column_pixels is None else self.column_pixels,
         }
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as z:
-            for name, t in arrays.items():
-                z.writestr(f"{name}.npy", _npy(t.detach().double().cpu()))
-            z.writestr("meta_json.npy", _npy_bytes(json.dumps(meta).encode()))
-        return path
+        return {k: t.detach().double().cpu() for k, t in arrays.items()}, meta
 
     @classmethod
-    def load(cls, path: str | Path) -> ComplexPattern:
-        """Read a file written by :meth:`save`."""
-        with zipfile.ZipFile(Path(path)) as z:
-            arrays = {n[:-4]: _read_npy(z.read(n)) for n in z.namelist() if n.endswith(".npy")}
-        missing = {"column_offset_re", "column_offset_im", "row_offset_re", "row_offset_im"}
-        missing = (missing | {"meta_json"}) - set(arrays)
-        if missing:
-            raise ValueError(f"{path} is not a complex-pattern file: missing {sorted(missing)}")
-        meta = json.loads(bytes(arrays["meta_json"].to(torch.uint8).tolist()).decode())
-        if meta.get("format") != _FORMAT:
-            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {_FORMAT!r}")
+    def from_arrays(cls, arrays: dict[str, torch.Tensor], meta: dict) -> ComplexPattern:
+        """The pattern of :meth:`to_arrays`' ``(arrays, meta)`` (as
+        :func:`tof_fpn_torch.io.patterns.read_pattern_file` returns them)."""
         rows = meta["has_rows"]
         return cls(
             column_offset_re=arrays["column_offset_re"],
@@ -216,10 +224,8 @@ def _line_offsets(z, v, width, clip, texture_k, ridge, local_width):
     n = torch.cat([-u[:, 1:], u[:, :1]], 1)  # across the phasor
     pilot = _nanmedian_pairs(g, ok)
     across = ((g - pilot) * n).sum(1, keepdim=True).abs()
-    moment = core.scale_moment(1, clip)
-    sig_g = core._robust_scale(
-        across.reshape(1, 1, 1, -1), ok.reshape(1, 1, 1, -1), clip, moment, 1
-    )
+    moment = scale_moment(1, clip)
+    sig_g = clipped_rms_scale(across.reshape(1, 1, 1, -1), ok.reshape(1, 1, 1, -1), clip, moment, 1)
     sig_g = float(sig_g[0])  # noise of one channel of g: sqrt(2) times that of z
     amp2 = 0.25 * mag * mag
     ref2 = (texture_k * sig_g) ** 2 / 2.0
@@ -285,11 +291,11 @@ def calibrate_complex_pattern(
     modulation_frequency_hz: float,
     *,
     rows: bool = False,
-    width: int = K.COMPLEX_CAL_WIDTH,
+    width: int = WIDTH,
     clip: float = K.DESTRIPE_CLIP,
-    amplitude_cap: float = K.COMPLEX_CAL_AMPLITUDE_CAP,
-    texture_k: float = K.COMPLEX_CAL_TEXTURE_K,
-    ridge: float = K.COMPLEX_CAL_RIDGE,
+    amplitude_cap: float = AMPLITUDE_CAP,
+    texture_k: float = TEXTURE_K,
+    ridge: float = RIDGE,
     local_width: int = K.DESTRIPE_LOCAL_WIDTH,
 ) -> ComplexPattern:
     """Estimate the complex column (and row) offsets of the read-out from (T, 1, H, W) depth

@@ -25,12 +25,14 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from ..runtime.noise import mad_to_sigma
 from ..runtime.validity import valid_mask
 
 __all__ = [
     "StripeEnergy",
     "column_stripe_energy",
     "lowpass_change",
+    "quiet_mask",
     "row_highpass",
     "structure_mask",
 ]
@@ -80,6 +82,21 @@ def structure_mask(
         k = 2 * dilate + 1
         strong = F.max_pool2d(strong.reshape(b * c, 1, h, w), k, 1, dilate).reshape(b, c, h, w)
     return v & (strong == 0)
+
+
+def quiet_mask(depth: torch.Tensor, sigmas: float = 6.0, width: int = 15) -> torch.Tensor:
+    """:func:`structure_mask` at ``sigmas`` robust standard deviations (``1.4826`` times the
+    median absolute value over the valid pixels) of the row high-pass itself: the scale includes
+    the noise *and* any stripes, so stripes far above the noise stay in the region and only scene
+    structure (edges, thin objects: outliers of the high-pass) is left out. A threshold from the
+    noise alone would leave out every pixel of a frame whose stripes are many noise sigmas."""
+    _check(depth)
+    v = valid_mask(depth)
+    hp = row_highpass(depth, width, v)
+    if not bool(v.any()):
+        return v
+    scale = float(mad_to_sigma(hp[v].abs().median().double(), 1))
+    return structure_mask(depth, sigmas * scale, width) if scale > 0 else v
 
 
 @dataclass

@@ -44,13 +44,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import kornia.filters as KF
 import torch
-import torch.nn.functional as F
 
 from .. import constants as K
 from ..runtime._checks import check_image, check_same_shape
 from ..runtime.validity import valid_mask
+from ._stripe_profile import _profile, _weights
 
 __all__ = ["StripeComponent", "StripeEstimate", "estimate_stripes"]
 
@@ -102,56 +101,95 @@ class StripeEstimate:
         return tuple(sorted({c.dim for c in self.components}))
 
 
-def _profile(
-    d: torch.Tensor, valid: torch.Tensor, w: torch.Tensor, smooth: int
-) -> tuple[torch.Tensor, torch.Tensor, float]:
-    """The weighted, outlier-free mean of the high-passed lines (profile axis last), the columns
-    it has, and the per-pixel noise sigma."""
-    v = valid.to(d.dtype)
-    size = (1, 2 * smooth + 1)  # kornia's box filter along each line over the valid samples
-    num = KF.box_blur((d * v).unsqueeze(1), size, border_type="constant").squeeze(1)
-    den = KF.box_blur(v.unsqueeze(1), size, border_type="constant").squeeze(1)
-    r = torch.where(valid, d - num / den.clamp_min(0.5 / (2 * smooth + 1)), torch.zeros_like(d))
-    mad = float(r[valid].abs().median()) if bool(valid.any()) else 0.0
-    sigma = K.MAD_TO_SIGMA * mad
-    keep = valid & (r.abs() <= 4.0 * sigma) if sigma > 0 else valid
-    # pixels within the box's reach of a scene edge (a central difference beyond 4 robust sigmas
-    # of all central differences) carry the edge's residual: leave them out
-    grad = torch.zeros_like(d)
-    grad[..., 1:-1] = (d[..., 2:] - d[..., :-2]).abs()
-    pair = torch.zeros_like(valid)
-    pair[..., 1:-1] = valid[..., 2:] & valid[..., :-2]
-    if bool(pair.any()):
-        g_sigma = K.MAD_TO_SIGMA * float(grad[pair].median())
-        edge = (pair & (grad > 4.0 * g_sigma)).to(d.dtype).unsqueeze(1)
-        near = F.max_pool2d(edge, (1, 2 * smooth + 1), 1, (0, smooth)).squeeze(1) > 0
-        keep = keep & ~near
-    wk = torch.where(keep, w, torch.zeros_like(w))
-    wsum = wk.sum((0, 1))  # over frames and lines
-    p = (wk * r).sum((0, 1)) / wsum.clamp_min(1e-30)
-    has = wsum > 0
-    if bool(has.any()):
-        # columns where the profile is an outlier (what is left of a vertical scene edge or a
-        # thin object spanning the frame, broadband) are left out of the spectrum. The scale is a
-        # clipped mean |p - mean| (not a MAD: a stripe at pi makes the profile two-valued, and
-        # the MAD of a two-valued profile is 0)
-        dev = (p - p[has].mean()).abs()
-        scale = 1.2533 * float(dev[has].mean())
-        for _ in range(3):
-            inside = has & (dev <= 3.0 * scale)
-            scale = float(dev[inside].mean()) / 0.786619 if bool(inside.any()) else scale
-        has = has & (dev <= 5.0 * scale)
-    p = torch.where(has, p - p[has].mean() if bool(has.any()) else p, torch.zeros_like(p))
-    # r = d - box(d): white noise keeps (1 - 1/n) of its variance
-    noise = sigma / math.sqrt(1.0 - 1.0 / (2 * smooth + 1))
-    return p, has, noise
-
-
 def _box_gain(w: float, length: int) -> float:
     """``|1 - B(w)|``: the gain of ``d - box(d)`` (box of ``length`` samples) at ``w``."""
     s = math.sin(w / 2.0)
     b = 1.0 if abs(s) < 1e-12 else math.sin(length * w / 2.0) / (length * s)
     return abs(1.0 - b)
+
+
+@dataclass
+class _Lines:
+    """The line test of :func:`_analyse` on one spectrum (module docstring, steps 4-7): the power
+    ``pw`` on the fine grid, the lines found so far (``taken``, grid indices) and what a component
+    records."""
+
+    pw: list[float]
+    n: int
+    fine: float
+    df: float
+    wsum: float
+    searched: float
+    noise: float
+    box: int
+    orientation: str
+    dim: int
+    false_alarm_max: float
+    min_stripe: float
+    taken: list[float] = field(default_factory=list)
+
+    @property
+    def last(self) -> int:
+        return len(self.pw) - 1
+
+    def usable(self, i: int) -> bool:
+        return 0 < i < self.last and all(abs(i - t) >= 2.5 * self.fine for t in self.taken)
+
+    def references(self, j: int) -> list[int]:
+        """Reference indices of candidate ``j``, away from the lines found: in pairs on both
+        sides, so a sloping background does not bias T; one-sided only next to pi, where nothing
+        lies beyond."""
+        refs = []
+        for k in _REF_BINS:
+            lo, hi = int(round(j - k * self.fine)), int(round(j + k * self.fine))
+            if self.usable(lo) and self.usable(hi):
+                refs += [lo, hi]
+            elif self.usable(lo) and j * self.df > math.pi - 3 * (2 * math.pi / self.n):
+                refs.append(lo)
+        return refs[:_MAX_REFS]
+
+    def frequency(self, j: int) -> float:
+        """The frequency of the line at grid index ``j``: sub-grid refined by a parabola through
+        the log power, snapped to a known FPN frequency within half a DFT bin."""
+        pw, df = self.pw, self.df
+        if 0 < j < self.last:
+            a, b, c = (math.log(max(pw[i], 1e-300)) for i in (j - 1, j, j + 1))
+            den = a - 2 * b + c
+            delta = 0.5 * (a - c) / den if den < 0 else 0.0
+            freq = min((j + max(-0.5, min(0.5, delta))) * df, math.pi)
+        else:
+            freq = j * df
+        for w0 in K.FPN_FREQUENCIES:  # snap to a known FPN frequency within half a bin
+            if abs(freq - w0) < 0.5 * (2 * math.pi / self.n):
+                freq = w0
+        return freq
+
+    def line(self, j: int) -> StripeComponent | None:
+        """The line test of candidate ``j`` against references away from the lines found."""
+        refs = self.references(j)
+        if len(refs) < 2:
+            return None
+        pw = self.pw
+        ref = sum(pw[i] for i in refs) / len(refs)
+        t = pw[j] / max(ref, 1e-300)
+        r = len(refs)
+        p_fa = min(1.0, self.searched * (1.0 + t / r) ** (-r))
+        freq = self.frequency(j)
+        scale = 1.0 if abs(freq - math.pi) < 0.5 * (2 * math.pi / self.n) else 0.5
+        gain = max(_box_gain(freq, self.box), 1e-3)
+        amp = math.sqrt(max(pw[j] - ref, 0.0)) / (scale * self.wsum * gain)
+        if p_fa > self.false_alarm_max or amp < self.min_stripe * self.noise:
+            return None
+        return StripeComponent(
+            orientation=self.orientation,
+            dim=self.dim,
+            frequency=float(freq),
+            strength=float(amp),
+            snr_db=float(10.0 * math.log10(max(t, 1e-300))),
+            false_alarm=float(p_fa),
+            confidence=float(1.0 - p_fa),
+            noise=float(self.noise),
+        )
 
 
 def _analyse(
@@ -168,17 +206,26 @@ def _analyse(
 ) -> tuple[list[StripeComponent], dict]:
     n = p.numel()
     pad = 8 * (1 << max(0, math.ceil(math.log2(n))))  # >= 8 grid points per DFT bin
-    fine = pad / n  # grid points per DFT bin
     window = torch.hann_window(n, periodic=False, dtype=p.dtype, device=p.device)
     spec = torch.fft.rfft(p * window, n=pad)
     power = (spec.real**2 + spec.imag**2).cpu().double()
-    wsum = float((window * has).sum())  # the window over the columns present (gaps left out)
-    pw = power.tolist()
-    last = len(pw) - 1
-    df = 2 * math.pi / pad  # grid step
-    # frequencies searched: the DFT bins in the band, twice (the maximum over a continuous
-    # frequency, found on the 8x finer grid, beats the bins' maximum)
-    searched = max(1.0, 2.0 * n * (math.pi - min_frequency) / (2 * math.pi))
+    lines = _Lines(
+        pw=power.tolist(),
+        n=n,
+        fine=pad / n,  # grid points per DFT bin
+        df=2 * math.pi / pad,  # grid step
+        wsum=float((window * has).sum()),  # the window over the columns present (gaps left out)
+        # frequencies searched: the DFT bins in the band, twice (the maximum over a continuous
+        # frequency, found on the 8x finer grid, beats the bins' maximum)
+        searched=max(1.0, 2.0 * n * (math.pi - min_frequency) / (2 * math.pi)),
+        noise=noise,
+        box=box,
+        orientation=orientation,
+        dim=dim,
+        false_alarm_max=false_alarm_max,
+        min_stripe=min_stripe,
+    )
+    pw, last, df = lines.pw, lines.last, lines.df
     cands = [
         j
         for j in range(1, last + 1)
@@ -186,61 +233,86 @@ def _analyse(
     ]
     cands.sort(key=lambda j: -pw[j])
     found: list[StripeComponent] = []
-    taken: list[float] = []  # grid indices of the lines found
-    for j in cands:
-        if len(found) >= max_components:
-            break
-        if any(abs(j - t) < 2.5 * fine for t in taken):
-            continue
-
-        def usable(i: int) -> bool:
-            return 0 < i < last and all(abs(i - t) >= 2.5 * fine for t in taken)
-
-        # references in pairs on both sides, so a sloping background does not bias T; one-sided
-        # only next to pi, where nothing lies beyond
-        refs = []
-        for k in _REF_BINS:
-            lo, hi = int(round(j - k * fine)), int(round(j + k * fine))
-            if usable(lo) and usable(hi):
-                refs += [lo, hi]
-            elif usable(lo) and j * df > math.pi - 3 * (2 * math.pi / n):
-                refs.append(lo)
-        refs = refs[:_MAX_REFS]
-        if len(refs) < 2:
-            continue
-        ref = sum(pw[i] for i in refs) / len(refs)
-        t = pw[j] / max(ref, 1e-300)
-        r = len(refs)
-        p_fa = min(1.0, searched * (1.0 + t / r) ** (-r))
-        if 0 < j < last:  # sub-grid refinement: parabola through the log power
-            a, b, c = (math.log(max(pw[i], 1e-300)) for i in (j - 1, j, j + 1))
-            den = a - 2 * b + c
-            delta = 0.5 * (a - c) / den if den < 0 else 0.0
-            freq = min((j + max(-0.5, min(0.5, delta))) * df, math.pi)
+    # strongest candidate first; after each line found, the candidates not yet taken are tested
+    # again from the strongest: their references no longer include it (on a short profile the
+    # references of the line at pi reach down to a line at 2 pi / 3 and hid it)
+    while len(found) < max_components:
+        for j in cands:
+            free = all(abs(j - t) >= 2.5 * lines.fine for t in lines.taken)
+            if lines.usable(j) or (j == last and free):
+                comp = lines.line(j)
+                if comp is not None:
+                    lines.taken.append(j)
+                    found.append(comp)
+                    break
         else:
-            freq = j * df
-        for w0 in K.FPN_FREQUENCIES:  # snap to a known FPN frequency within half a bin
-            if abs(freq - w0) < 0.5 * (2 * math.pi / n):
-                freq = w0
-        scale = 1.0 if abs(freq - math.pi) < 0.5 * (2 * math.pi / n) else 0.5
-        amp = math.sqrt(max(pw[j] - ref, 0.0)) / (scale * wsum * max(_box_gain(freq, box), 1e-3))
-        if p_fa > false_alarm_max or amp < min_stripe * noise:
-            continue
-        taken.append(j)
-        found.append(
-            StripeComponent(
-                orientation=orientation,
-                dim=dim,
-                frequency=float(freq),
-                strength=float(amp),
-                snr_db=float(10.0 * math.log10(max(t, 1e-300))),
-                false_alarm=float(p_fa),
-                confidence=float(1.0 - p_fa),
-                noise=float(noise),
-            )
-        )
+            break
     freqs = torch.arange(len(pw), dtype=torch.float64) * df
     return found, {"frequency": freqs, "power": power, "noise": noise}
+
+
+def _check_arguments(
+    depth, amplitude, orientations, smooth, min_frequency, false_alarm, min_stripe, max_components
+) -> None:
+    """The checks of :func:`estimate_stripes` (ValueError naming the argument)."""
+    check_image(depth, "depth", 1)
+    if amplitude is not None:
+        check_image(amplitude, "amplitude", 1)
+        check_same_shape(amplitude, depth, "amplitude", "depth")
+    bad = [o for o in orientations if o not in ("columns", "rows")]
+    if bad or not orientations:
+        raise ValueError(f"orientations must be from ('columns', 'rows'), got {orientations!r}")
+    if isinstance(smooth, bool) or not isinstance(smooth, int) or smooth < 1:
+        raise ValueError(f"smooth must be an int >= 1, got {smooth!r}")
+    if not 0.0 < float(min_frequency) < math.pi:
+        raise ValueError(f"min_frequency must lie in (0, pi), got {min_frequency!r}")
+    if not 0.0 < float(false_alarm) < 1.0:
+        raise ValueError(f"false_alarm must lie in (0, 1), got {false_alarm!r}")
+    if not (math.isfinite(float(min_stripe)) and min_stripe >= 0):
+        raise ValueError(f"min_stripe must be a finite number >= 0, got {min_stripe!r}")
+    if (
+        isinstance(max_components, bool)
+        or not isinstance(max_components, int)
+        or max_components < 1
+    ):
+        raise ValueError(f"max_components must be an int >= 1, got {max_components!r}")
+
+
+def _orientation(
+    d: torch.Tensor,
+    valid: torch.Tensor,
+    w: torch.Tensor,
+    orientation: str,
+    smooth: int,
+    min_frequency: float,
+    false_alarm_max: float,
+    min_stripe: float,
+    max_components: int,
+) -> tuple[list[StripeComponent], dict] | None:
+    """The components and the spectrum of one orientation (None: lines too short to test)."""
+    if orientation == "columns":
+        dd, vv, ww, dim = d, valid, w, -1
+    else:
+        dd, vv, ww, dim = d.transpose(-1, -2), valid.transpose(-1, -2), w.transpose(-1, -2), -2
+    if dd.shape[-1] < 8:
+        return None  # fewer than 8 samples per line: no line test possible
+    half = min(smooth, max(1, dd.shape[-1] // 4))  # short lines: a shorter box
+    p, has, noise = _profile(dd, vv, ww, half)
+    if int(has.sum()) < 8:
+        return None  # fewer than 8 usable samples per line: no line test possible
+    box = 2 * half + 1
+    return _analyse(
+        p,
+        has,
+        noise,
+        box,
+        orientation,
+        dim,
+        min_frequency,
+        false_alarm_max,
+        min_stripe,
+        max_components,
+    )
 
 
 def estimate_stripes(
@@ -282,63 +354,21 @@ def estimate_stripes(
         >>> [(c.orientation, round(c.frequency, 4)) for c in estimate_stripes(d).components]
         [('columns', 3.1416)]
     """
-    check_image(depth, "depth", 1)
-    if amplitude is not None:
-        check_image(amplitude, "amplitude", 1)
-        check_same_shape(amplitude, depth, "amplitude", "depth")
-    bad = [o for o in orientations if o not in ("columns", "rows")]
-    if bad or not orientations:
-        raise ValueError(f"orientations must be from ('columns', 'rows'), got {orientations!r}")
-    if isinstance(smooth, bool) or not isinstance(smooth, int) or smooth < 1:
-        raise ValueError(f"smooth must be an int >= 1, got {smooth!r}")
-    if not 0.0 < float(min_frequency) < math.pi:
-        raise ValueError(f"min_frequency must lie in (0, pi), got {min_frequency!r}")
-    if not 0.0 < float(false_alarm) < 1.0:
-        raise ValueError(f"false_alarm must lie in (0, 1), got {false_alarm!r}")
-    if not (math.isfinite(float(min_stripe)) and min_stripe >= 0):
-        raise ValueError(f"min_stripe must be a finite number >= 0, got {min_stripe!r}")
-    if (
-        isinstance(max_components, bool)
-        or not isinstance(max_components, int)
-        or max_components < 1
-    ):
-        raise ValueError(f"max_components must be an int >= 1, got {max_components!r}")
+    args = (orientations, smooth, min_frequency, false_alarm, min_stripe, max_components)
+    _check_arguments(depth, amplitude, *args)
     valid = valid_mask(depth, amplitude)[:, 0]
     if not bool(valid.any()):
         raise ValueError("depth has no valid pixel (NaN, inf, <= 0, or invalid amplitude)")
-    d = torch.where(valid, depth[:, 0].double(), torch.zeros_like(depth[:, 0].double()))
-    if amplitude is not None:
-        a = torch.where(valid, amplitude[:, 0].double(), torch.zeros_like(d))
-        med = float(a[valid].median()) or 1.0
-        w = torch.where(valid, 1.0 / (1.0 + a / med), torch.zeros_like(d))
-    else:
-        w = valid.to(d.dtype)
+    d, w = _weights(depth, amplitude, valid)
     components: list[StripeComponent] = []
     spectra = {}
+    budget = false_alarm / len(orientations)  # the budget is for the whole estimate
     for o in orientations:
-        if o == "columns":
-            dd, vv, ww, dim = d, valid, w, -1
-        else:
-            dd, vv, ww, dim = d.transpose(-1, -2), valid.transpose(-1, -2), w.transpose(-1, -2), -2
-        if dd.shape[-1] < 8:
-            continue  # fewer than 8 samples per line: no line test possible
-        half = min(smooth, max(1, dd.shape[-1] // 4))  # short lines: a shorter box
-        p, has, noise = _profile(dd, vv, ww, half)
-        if int(has.sum()) < 8:
-            continue  # fewer than 8 usable samples per line: no line test possible
-        found, spec = _analyse(
-            p,
-            has,
-            noise,
-            2 * half + 1,
-            o,
-            dim,
-            min_frequency,
-            false_alarm / len(orientations),  # the budget is for the whole estimate
-            min_stripe,
-            max_components,
+        done = _orientation(
+            d, valid, w, o, smooth, min_frequency, budget, min_stripe, max_components
         )
-        components.extend(found)
-        spectra[o] = spec
+        if done is not None:
+            components.extend(done[0])
+            spectra[o] = done[1]
     components.sort(key=lambda c: -c.snr_db)
     return StripeEstimate(tuple(components), spectra)

@@ -20,13 +20,21 @@ Example:
 """
 
 from .config import CHOICES, CleanConfig, config_from_dict, config_to_toml, load_config
-from .pipeline import DENOISERS, CleanPipeline, build_pipeline, describe, register_denoiser
+from .pipeline import (
+    DENOISERS,
+    Calibration,
+    CleanPipeline,
+    build_pipeline,
+    describe,
+    register_denoiser,
+)
 from .run import ENGINES, CleanReport, clean, resolve_device
 
 __all__ = [
     "CHOICES",
     "DENOISERS",
     "ENGINES",
+    "Calibration",
     "CleanConfig",
     "CleanPipeline",
     "CleanReport",

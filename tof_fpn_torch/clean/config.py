@@ -7,11 +7,15 @@ saved beside the output as ``clean.toml`` together with the package version
 the defaults shown)::
 
     [pipeline]
-    destripe = "off"      # broadband column / row offsets: off | columns | rows | both | auto
-    notch = "design"      # periodic stripes (FPNSuppression): off | design | data
-    fusion = "camera"     # eq. (11) amplitude fusion: off | camera | data | manual
-                          #   (default: camera with a notch stage, off without one)
+    stage = "auto"        # the defaults of the three keys below: auto | paper
+                          #   auto:  destripe = auto, notch = data, fusion = data (all measured)
+                          #   paper: destripe = off, notch = design, fusion = camera (CamCube)
+    destripe = "auto"     # broadband column / row offsets: off | columns | rows | both | auto
+    notch = "data"        # periodic stripes (FPNSuppression): off | design | data
+    fusion = "data"       # eq. (11) amplitude fusion: off | camera | data | manual
+                          #   (default: data with notch = data, camera with design, else off)
     denoise = "none"      # none or a denoiser of tof_fpn_torch.clean.DENOISERS (nlm, bm3d, ...)
+    pattern = "wall.npz"  # a fixed pattern from tof-fpn calibrate, removed first (default: none)
 
     [notch]
     order = 20            # filter order
@@ -20,6 +24,7 @@ the defaults shown)::
 
     [fusion]
     camera = "camcube"    # profile whose thresholds (amplitude units) fusion = camera uses
+                          #   (default: the camera the files say they come from, else camcube)
     low = 70.0            # fusion = manual: the thresholds, in the camera's amplitude units
     high = 350.0
 
@@ -35,11 +40,24 @@ the defaults shown)::
                           #   floating ones, an HDF5 dataset's scale_m attribute)
     height = 424          # frame size of raw .bin / .raw files, pixels
     width = 512
+    rounding = "dither"   # integer outputs: dither (the correction survives in the mean) |
+                          #   nearest (plain rounding: corrections under half a unit vanish)
+    output_scale = 0.0001 # integer outputs: metres per stored unit (default: the input's)
 
 ``auto`` / ``data`` stages are measured on the calibration frames when the run starts
 (:mod:`tof_fpn_torch.build`: ``broadband_from_data``, ``suppression_from_data``,
 ``fusion_from_data``); ``[tof_fpn_torch]`` (the version a saved file records) is accepted and not
-used.
+used. A key given explicitly wins over the ``stage`` preset.
+
+**Integer outputs.** A uint16-mm file cannot hold a correction of 0.3 mm by rounding to the
+nearest millimetre: it rounds back to the input. ``rounding = "dither"`` (default) rounds each
+valid pixel up with probability equal to its fractional part (a uniform dither from a generator
+seeded by the frame's own bytes, so the same input gives the same bytes): every column, row and
+region keeps the corrected mean, at the price of a rounding noise of variance ``f (1 - f)``
+(<= 1/4 unit^2, 1/6 on average) instead of nearest rounding's 1/12 (and pixels the stage did not
+move keep their value exactly). ``output_scale`` stores the depth in finer units instead (e.g.
+0.1 mm: a uint16 then reaches 6.5535 m); the files then no longer hold millimetres, so a reader
+must be told the scale (the manifest records it, and a PNG gets a ``depth_scale_m`` text chunk).
 """
 
 from __future__ import annotations
@@ -54,10 +72,12 @@ try:
 except ModuleNotFoundError:  # Python 3.10: the same parser as a package
     import tomli as tomllib
 
-from .. import __version__
+from .. import __version__, cameras
 from .. import constants as K
 
 __all__ = [
+    "BATCH",
+    "CALIBRATION_FRAMES",
     "CHOICES",
     "CleanConfig",
     "config_from_dict",
@@ -65,19 +85,38 @@ __all__ = [
     "load_config",
 ]
 
+#: Files per group and frames per compute batch (``batch``): the batches are fixed by the sorted
+#: file list, so that a resumed run or the Ray engine computes every frame in the same batch
+#: (batched torch kernels differ in the last bits between batch sizes).
+BATCH: int = 8
+#: Frames (the first in file order) on which ``auto`` / ``data`` stages are measured when the run
+#: starts (``calibration_frames``).
+CALIBRATION_FRAMES: int = 8
+
 #: the allowed values of the ``[pipeline]`` keys (``denoise``: ``none`` or a registered name)
 CHOICES: dict[str, tuple[str, ...]] = {
+    "stage": ("auto", "paper"),
     "destripe": ("off", "columns", "rows", "both", "auto"),
     "notch": ("off", "design", "data"),
     "fusion": ("off", "camera", "data", "manual"),
+    "rounding": ("dither", "nearest"),
+}
+#: the fusion that goes with each notch choice when ``fusion`` is not given
+FUSION_FOR_NOTCH: dict[str, str] = {"off": "off", "design": "camera", "data": "data"}
+#: what each ``stage`` preset sets (a key given explicitly wins)
+PRESETS: dict[str, dict[str, str]] = {
+    "auto": {"destripe": "auto", "notch": "data"},
+    "paper": {"destripe": "off", "notch": "design", "camera": "camcube"},
 }
 #: TOML table -> {key: CleanConfig field}
 _TABLES: dict[str, dict[str, str]] = {
-    "pipeline": {k: k for k in ("destripe", "notch", "fusion", "denoise")},
+    "pipeline": {k: k for k in ("stage", "destripe", "notch", "fusion", "denoise", "pattern")},
     "notch": {"order": "order", "rho": "rho", "gate": "gate"},
     "fusion": {"camera": "camera", "low": "low", "high": "high"},
     "calibration": {"frames": "calibration_frames"},
-    "files": {k: k for k in ("batch", "depth_scale", "height", "width")},
+    "files": {
+        k: k for k in ("batch", "depth_scale", "height", "width", "rounding", "output_scale")
+    },
 }
 
 
@@ -86,49 +125,71 @@ class CleanConfig:
     """What a ``tof-fpn clean`` run does (the TOML keys: module docstring).
 
     Attributes:
+        stage: the preset of ``destripe``, ``notch``, ``fusion`` (and ``camera``) where those are
+            None (:data:`PRESETS`): ``"auto"`` measures every piece on the calibration frames,
+            ``"paper"`` is the paper's CamCube stage (gated).
         destripe, notch, fusion: stage choices (:data:`CHOICES`); ``fusion=None`` resolves to
-            ``"camera"`` with a notch stage and ``"off"`` without.
+            ``"data"`` with ``notch="data"``, ``"camera"`` with ``"design"`` and ``"off"`` without
+            a notch.
         denoise: ``"none"`` or a name of :data:`tof_fpn_torch.clean.DENOISERS`.
+        pattern: a pattern file of ``tof-fpn calibrate`` (:mod:`.pattern`), removed from every
+            frame before the other stages (and before they are measured), or None.
         order, rho, gate: the notch filter (``rho=None``: 0.14 for ``design``, from the notch
             frequencies for ``data``).
-        camera, low, high: fusion thresholds, in the camera's amplitude units.
+        camera, low, high: fusion thresholds, in the camera's amplitude units (``camera=None``:
+            the profile of the camera the files come from, else CamCube's).
         calibration_frames: frames measured by ``auto`` / ``data`` stages.
         denoise_options: keyword arguments of the denoiser.
         batch: files per group and frames per compute batch (fixes the batches, so that a
             resumed or a Ray run computes every frame in the same batch as an uninterrupted one).
         depth_scale: metres per stored depth unit, or None (file default).
         height, width: pixels of raw ``.bin`` / ``.raw`` frames.
+        rounding: integer outputs: ``"dither"`` or ``"nearest"`` (module docstring).
+        output_scale: integer outputs: metres per stored unit, or None (the input's).
     """
 
-    destripe: str = "off"
-    notch: str = "design"
+    stage: str = "auto"
+    destripe: str | None = None
+    notch: str | None = None
     fusion: str | None = None
     denoise: str = "none"
+    pattern: str | None = None
     order: int = K.DEFAULT_ORDER
     rho: float | None = None
     gate: bool = True
-    camera: str = "camcube"
+    camera: str | None = None
     low: float | None = None
     high: float | None = None
-    calibration_frames: int = K.CLEAN_CALIBRATION_FRAMES
+    calibration_frames: int = CALIBRATION_FRAMES
     denoise_options: dict = field(default_factory=dict)
-    batch: int = K.CLEAN_BATCH
+    batch: int = BATCH
     depth_scale: float | None = None
     height: int | None = None
     width: int | None = None
+    rounding: str = "dither"
+    output_scale: float | None = None
 
     def __post_init__(self) -> None:
+        if self.stage not in CHOICES["stage"]:
+            raise ValueError(f"stage must be one of {list(CHOICES['stage'])}, got {self.stage!r}")
+        for key, value in PRESETS[self.stage].items():
+            if getattr(self, key) is None:
+                setattr(self, key, value)
+        if self.fusion is None:
+            self.fusion = FUSION_FOR_NOTCH.get(self.notch)
         for key, allowed in CHOICES.items():
             v = getattr(self, key)
-            if key == "fusion" and v is None:
-                self.fusion = "off" if self.notch == "off" else "camera"
-            elif v not in allowed:
+            if v not in allowed:
                 raise ValueError(f"{key} must be one of {list(allowed)}, got {v!r}")
+        if self.camera is not None:
+            cameras.profile(self.camera)  # ValueError naming the known profiles
         if self.notch == "off" and self.fusion != "off":
             raise ValueError(
                 f"fusion = {self.fusion!r} blends the notch filter's output: it needs notch = "
                 "'design' or 'data' (got notch = 'off')"
             )
+        if self.pattern is not None and (not isinstance(self.pattern, str) or not self.pattern):
+            raise ValueError(f"pattern must be a file name or absent, got {self.pattern!r}")
         if not isinstance(self.denoise, str) or not self.denoise:
             raise ValueError(f"denoise must be 'none' or a denoiser name, got {self.denoise!r}")
         _int("order", self.order, 1)
@@ -137,7 +198,7 @@ class CleanConfig:
         for name in ("height", "width"):
             if getattr(self, name) is not None:
                 _int(name, getattr(self, name), 1)
-        for name in ("rho", "low", "high", "depth_scale"):
+        for name in ("rho", "low", "high", "depth_scale", "output_scale"):
             v = getattr(self, name)
             if v is not None:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -158,8 +219,13 @@ class CleanConfig:
     def replace(self, **changes) -> CleanConfig:
         """A copy with ``changes`` (checked again); ``None`` values are ignored (flag not given)."""
         changes = {k: v for k, v in changes.items() if v is not None}
-        if "notch" in changes and "fusion" not in changes and changes["notch"] == "off":
-            changes["fusion"] = "off"
+        if "stage" in changes and changes["stage"] != self.stage:  # a new preset: its defaults
+            for key in ("destripe", "notch", "fusion", "camera"):
+                changes.setdefault(key, None)
+            return dataclasses.replace(self, **changes)
+        same = self.fusion == FUSION_FOR_NOTCH[self.notch]
+        if "notch" in changes and "fusion" not in changes and same:
+            changes["fusion"] = None  # the fusion that goes with the new notch
         return dataclasses.replace(self, **changes)
 
     def identity(self) -> str:

@@ -62,7 +62,7 @@ class _Groups(Dataset):
         if self.pipeline is None:
             return group
         compute_group(self.pipeline, group, self.config.batch, "cpu")
-        return write_group(group, self.token, self.root)
+        return write_group(group, self.token, self.root, self.config)
 
 
 def run_local(
@@ -85,7 +85,7 @@ def run_local(
                 return
             group = load_group(jobs, todo, config)
             compute_group(pipeline, group, config.batch, device)
-            yield write_group(group, token, root)
+            yield write_group(group, token, root, config)
         return
     device = torch.device(device)
     in_workers = device.type == "cpu" if compute_in_workers is None else compute_in_workers
@@ -110,7 +110,7 @@ def run_local(
             pending: deque = deque()
             for group in it:
                 compute_group(pipeline, group, config.batch, device)
-                pending.append(pool.submit(write_group, group, token, root))
+                pending.append(pool.submit(write_group, group, token, root, config))
                 while pending and (pending[0].done() or len(pending) > 2 * workers):
                     yield pending.popleft().result()
                 if stop():

@@ -61,9 +61,10 @@ class _Compute:
         return {"payload": np.array(out, dtype=object)}
 
 
-def _write(batch: dict, token: str, root: str) -> dict:
+def _write(batch: dict, token: str, root: str, config: CleanConfig) -> dict:
     records = [
-        json.dumps(write_group(pickle.loads(blob), token, root)) for blob in batch["payload"]
+        json.dumps(write_group(pickle.loads(blob), token, root, config))
+        for blob in batch["payload"]
     ]
     return {"records": np.array(records, dtype=object)}
 
@@ -137,7 +138,9 @@ def run_ray(
             compute=ray.data.ActorPoolStrategy(size=concurrency),
             num_gpus=1 if gpu else 0,
         )
-        ds = ds.map_batches(_write, batch_size=1, fn_kwargs={"token": token, "root": root})
+        ds = ds.map_batches(
+            _write, batch_size=1, fn_kwargs={"token": token, "root": root, "config": config}
+        )
         for rows in ds.iter_batches(batch_size=1, batch_format="numpy"):
             yield [rec for text in rows["records"] for rec in json.loads(text)]
             if stop():

@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import os
 import secrets
 import signal
@@ -28,9 +29,12 @@ from tqdm import tqdm
 
 from .. import __version__
 from .config import CleanConfig, config_to_toml, load_config
+from .figure import report_figure
 from .manifest import Manifest, finished, now, read_manifest
-from .pipeline import build_pipeline, describe
+from .measure import summarise
+from .pipeline import Calibration, build_pipeline, describe, stage_line
 from .plan import (
+    LOCK,
     MANIFEST,
     SAVED_CONFIG,
     TMP_MARK,
@@ -39,11 +43,13 @@ from .plan import (
     plan_jobs,
     remove_stale_temporaries,
 )
-from .work import load_group
+from .work import read_jobs
 
 __all__ = ["ENGINES", "CleanReport", "clean", "resolve_device"]
 
 ENGINES = ("local", "ray")
+#: failed files listed by :meth:`CleanReport.summary` (all are in the manifest)
+SHOWN_FAILURES = 10
 
 
 @dataclass
@@ -61,6 +67,9 @@ class CleanReport:
     steps: dict = field(default_factory=lambda: {"read": 0.0, "compute": 0.0, "write": 0.0})
     failures: list = field(default_factory=list)
     created: bool = False
+    stage: str = ""
+    records: list = field(default_factory=list)
+    figure: str | None = None
 
     @property
     def status(self) -> int:
@@ -68,13 +77,36 @@ class CleanReport:
             return 128 + self.interrupted
         return 1 if self.failed else 0
 
+    def add(self, rec: dict) -> None:
+        """Count one file's manifest record."""
+        for step in self.steps:
+            self.steps[step] += rec.get(f"{step}_s", 0.0)
+        if rec["status"] == "done":
+            self.done += 1
+            self.frames += rec["frames"]
+            self.records.append({"status": "done", "report": rec.get("report")})
+        else:
+            self.failed += 1
+            self.failures.append((rec["file"], rec["error"]))
+
     def summary(self) -> str:
+        """What the command prints: the stage, the counts, what the cleaning did (module
+        :mod:`.measure`), one line per failed file (the first :data:`SHOWN_FAILURES`)."""
         rate = self.frames / self.seconds if self.seconds > 0 else 0.0
-        s = (
+        lines = [self.stage] if self.stage else []
+        lines.append(
             f"cleaned {self.done} file(s) ({self.frames} frames) in {self.seconds:.1f} s, "
-            f"{rate:.1f} frames/s; {self.failed} failed; {self.already_done} already done"
+            f"{rate:.1f} frames/s; {self.failed} failed; {self.already_done} already done; "
+            f"output {self.output}, manifest {os.path.join(self.output, MANIFEST)}"
         )
-        return s + f"; output {self.output}, manifest {os.path.join(self.output, MANIFEST)}"
+        lines += summarise(self.records)
+        if self.figure:
+            lines.append(f"figure: {self.figure}")
+        for name, why in self.failures[:SHOWN_FAILURES]:
+            lines.append(f"failed: {name}: {why}")
+        if len(self.failures) > SHOWN_FAILURES:
+            lines.append(f"... and {len(self.failures) - SHOWN_FAILURES} more failed (manifest)")
+        return "\n".join(lines)
 
 
 def resolve_device(device: str | torch.device = "auto") -> torch.device:
@@ -92,24 +124,42 @@ def resolve_device(device: str | torch.device = "auto") -> torch.device:
     return dev
 
 
-def _calibration(jobs, config: CleanConfig):
-    """The first ``calibration_frames`` readable frames (of the first readable frame's shape)."""
-    depth, amplitude = [], []
-    for job in jobs:
-        if job.error is not None:
-            continue
-        (item,) = load_group([job], set(), config)
-        for d, a in item.tensors or []:
-            if depth and d.shape[-2:] != depth[0].shape[-2:]:
-                continue
-            depth.append(d)
-            amplitude.append(a)
-        if sum(x.shape[0] for x in depth) >= config.calibration_frames:
-            break
-    if not depth:
-        raise ValueError("no readable frame in INPUT to measure the data-driven stages on")
-    n = config.calibration_frames
-    return torch.cat(depth)[:n], torch.cat(amplitude)[:n]
+def _calibration(jobs, config: CleanConfig) -> Calibration:
+    """The first ``calibration_frames`` readable frames (of the first readable frame's shape,
+    frames with no valid pixel left out), and the camera the files name."""
+    return Calibration(*read_jobs(jobs, config, config.calibration_frames))
+
+
+@contextlib.contextmanager
+def output_lock(output: str):
+    """Hold ``OUTPUT/.tof-fpn-clean.lock`` (an exclusive ``flock``, the file holding the pid) for
+    the run; ``ValueError`` when another run holds it. The file is removed when the run ends; a
+    killed run leaves it, unlocked (the kernel releases the lock with the process), and the next
+    run takes it over. (Where ``fcntl`` is missing, e.g. on Windows, nothing is locked.)"""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    fd = os.open(os.path.join(output, LOCK), os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise ValueError(
+                f"OUTPUT {output!r} is being written by another tof-fpn clean (pid {owner}); "
+                "wait for it to finish, or choose another OUTPUT"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        try:
+            yield
+        finally:  # still held: a run starting now opens a new file, after this one is done
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(os.path.join(output, LOCK))
+    finally:
+        os.close(fd)
 
 
 @contextlib.contextmanager
@@ -165,6 +215,7 @@ def clean(
     concurrency: int | None = None,
     ray_address: str | None = None,
     compute_in_workers: bool | None = None,
+    figure: bool = True,
 ) -> CleanReport:
     """Clean every frame file of ``input_path`` (a file or a directory tree) into ``output``.
 
@@ -172,7 +223,7 @@ def clean(
         input_path: a frame file or a directory (walked recursively).
         output: the output directory (made if missing): the same names, dtypes, units, shapes and
             metadata as the inputs, with the depth cleaned; ``manifest.jsonl``, ``clean.toml``.
-        config: the stages (default :class:`CleanConfig`: the notch stage from the design).
+        config: the stages (default :class:`CleanConfig`: every piece measured, ``stage="auto"``).
         workers: DataLoader worker processes (local engine), 0: none.
         device: ``"auto"`` (GPU if any), ``"cpu"`` or ``"cuda[:N]"``.
         engine: ``"local"`` or ``"ray"`` (:mod:`.ray_engine`).
@@ -181,6 +232,7 @@ def clean(
         ray_address: the Ray cluster (``ray.init(address=...)``); None: ``RAY_ADDRESS`` or a new
             local instance.
         compute_in_workers: local engine: compute in the workers (default: on the CPU only).
+        figure: draw ``OUTPUT/report.png`` (:mod:`.figure`) when files were cleaned.
 
     Returns:
         a :class:`CleanReport` (``status`` is the exit status of ``tof-fpn clean``).
@@ -189,104 +241,147 @@ def clean(
         ValueError: a bad argument or an OUTPUT that would overwrite INPUT (before anything is
             written). Bad input files do not raise: they are failed records in the manifest.
     """
-    config = CleanConfig() if config is None else config
-    if engine not in ENGINES:
-        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-        raise ValueError(f"workers must be an int >= 0, got {workers!r}")
-    dev = resolve_device(device)
+    config = _checked(config, engine, workers)
+    run = _Execution(engine, workers, resolve_device(device), progress, concurrency, ray_address,
+                     compute_in_workers, figure)  # fmt: skip
     check_paths(input_path, output)
     jobs = plan_jobs(input_path, output)
-    pipeline = build_pipeline(config, lambda: _calibration(jobs, config)).to(dev)
+    pipeline = build_pipeline(config, lambda: _calibration(jobs, config)).to(run.device)
     report = CleanReport(output, jobs=len(jobs), created=not os.path.isdir(output))
+    report.stage = stage_line(describe(pipeline), config.stage)
     os.makedirs(output, exist_ok=True)
-    _saved_config(output, config)
+    with output_lock(output):  # one run per OUTPUT at a time
+        _saved_config(output, config)
+        _run(output, config, jobs, pipeline, report, run)
+    return report
+
+
+@dataclass(frozen=True)
+class _Execution:
+    """How a run executes (the arguments of :func:`clean` that do not change the output)."""
+
+    engine: str
+    workers: int
+    device: torch.device
+    progress: bool | None
+    concurrency: int | None
+    ray_address: str | None
+    compute_in_workers: bool | None
+    figure: bool
+
+
+def _run(output, config, jobs, pipeline, report: CleanReport, run: _Execution) -> None:
+    """Steps 3-5 of the module docstring, OUTPUT locked and its configuration saved."""
     manifest_path = os.path.join(output, MANIFEST)
     done = finished(read_manifest(manifest_path), jobs)
     remove_stale_temporaries(output)
     report.already_done = len(done)
     groups = [(g, {j.name for j in g} - done) for g in groups_of(jobs, config.batch)]
     groups = [(g, todo) for g, todo in groups if todo]
-    todo_count = sum(len(t) for _, t in groups)
     token = f"{os.getpid()}-{secrets.token_hex(4)}"
-    run_id = token
     t0 = time.perf_counter()
     with Manifest(manifest_path) as man, _signals() as caught:
+        todo = sum(len(t) for _, t in groups)
         man.write(
             {
-                "event": "start",
-                "run": run_id,
-                "version": __version__,
-                "engine": engine,
-                "workers": workers,
-                "device": str(dev),
-                "jobs": len(jobs),
-                "todo": todo_count,
-                "already_done": len(done),
-                "pipeline": describe(pipeline),
+                "event": "start", "run": token, "version": __version__, "engine": run.engine,
+                "workers": run.workers, "device": str(run.device), "jobs": len(jobs),
+                "todo": todo, "already_done": len(done), "pipeline": describe(pipeline),
                 "time": now(),
             }
-        )
+        )  # fmt: skip
         for job in jobs:
             if job.error is not None:
-                rec = {"file": job.name, "status": "failed", "error": job.error, "time": now()}
-                man.write(rec)
-                report.failed += 1
-                report.failures.append((job.name, job.error))
-        bar = tqdm(
-            total=todo_count,
-            unit="file",
-            desc="clean",
-            disable=None if progress is None else not progress,
-            file=sys.stderr,
+                rec = {"file": job.name, "status": "failed", "error": job.error}
+                man.write({**rec, "time": now()})
+                report.add(rec)
+        stream = _engine_stream(
+            run, groups, pipeline, config, token=token, root=output, stop=lambda: bool(caught)
         )
-        kw = dict(token=token, root=output, stop=lambda: bool(caught))
-        if engine == "local":
-            from .local import run_local
-
-            stream = run_local(
-                groups, pipeline, config, workers=workers, device=dev,
-                compute_in_workers=compute_in_workers, **kw,
-            )  # fmt: skip
-        else:
-            from .ray_engine import run_ray
-
-            stream = run_ray(
-                groups, pipeline, config, device=dev, concurrency=concurrency,
-                address=ray_address, **kw,
-            )  # fmt: skip
-        try:
-            for records in stream:
-                for rec in records:
-                    man.write(rec)
-                    for step in report.steps:
-                        report.steps[step] += rec.get(f"{step}_s", 0.0)
-                    if rec["status"] == "done":
-                        report.done += 1
-                        report.frames += rec["frames"]
-                    else:
-                        report.failed += 1
-                        report.failures.append((rec["file"], rec["error"]))
-                bar.update(len(records))
-        finally:
-            stream.close()
-            bar.close()
-            for folder, _, files in os.walk(output):  # this run's temporaries (a stopped worker)
-                for f in files:
-                    if f.startswith(".") and f"{TMP_MARK}{token}" in f:
-                        with contextlib.suppress(FileNotFoundError):
-                            os.remove(os.path.join(folder, f))
+        _consume(stream, man, report, todo, run.progress)
+        _remove_own_temporaries(output, token)
         report.seconds = time.perf_counter() - t0
         report.interrupted = caught[0] if caught else None
+        if run.figure and report.done and report.interrupted is None:
+            report.figure = _figure(output, jobs, config)
         man.write(
             {
-                "event": "end",
-                "run": run_id,
-                "done": report.done,
-                "failed": report.failed,
-                "interrupted": report.interrupted,
-                "seconds": round(report.seconds, 3),
+                "event": "end", "run": token, "done": report.done, "failed": report.failed,
+                "interrupted": report.interrupted, "seconds": round(report.seconds, 3),
                 "time": now(),
             }
+        )  # fmt: skip
+
+
+def _checked(config, engine: str, workers) -> CleanConfig:
+    """The configuration, after refusing bad arguments before anything is read or written."""
+    config = CleanConfig() if config is None else config
+    if not isinstance(config, CleanConfig):
+        raise TypeError(
+            f"config must be a CleanConfig or None, got {type(config).__name__} {config!r}: "
+            "build one with CleanConfig(destripe='columns', ...) or read a TOML file with "
+            "load_config(path)"
         )
-    return report
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+    if engine == "ray" and importlib.util.find_spec("ray") is None:
+        raise ValueError(
+            "--engine ray needs Ray Data: pip install 'tof_fpn_torch[ray]' (ray[data] >= 2.9)"
+        )
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ValueError(f"workers must be an int >= 0, got {workers!r}")
+    return config
+
+
+def _engine_stream(run: _Execution, groups, pipeline, config, **kw):
+    """The records of the groups, from the local or the Ray engine."""
+    if run.engine == "local":
+        from .local import run_local
+
+        return run_local(
+            groups, pipeline, config, workers=run.workers, device=run.device,
+            compute_in_workers=run.compute_in_workers, **kw,
+        )  # fmt: skip
+    from .ray_engine import run_ray
+
+    return run_ray(
+        groups, pipeline, config, device=run.device, concurrency=run.concurrency,
+        address=run.ray_address, **kw,
+    )  # fmt: skip
+
+
+def _consume(stream, man: Manifest, report: CleanReport, total: int, progress) -> None:
+    """Append each record to the manifest as its file lands, count it, show progress."""
+    bar = tqdm(
+        total=total,
+        unit="file",
+        desc="clean",
+        disable=None if progress is None else not progress,
+        file=sys.stderr,
+    )
+    try:
+        for records in stream:
+            for rec in records:
+                man.write(rec)
+                report.add(rec)
+            bar.update(len(records))
+    finally:
+        stream.close()
+        bar.close()
+
+
+def _figure(output: str, jobs, config: CleanConfig) -> str | None:
+    """``OUTPUT/report.png`` (its path), or why it was not drawn: the files are cleaned anyway."""
+    try:
+        return report_figure(output, jobs, config)
+    except Exception as exc:  # noqa: BLE001
+        return f"not drawn: {type(exc).__name__}: {exc}"
+
+
+def _remove_own_temporaries(output: str, token: str) -> None:
+    """This run's temporary files (a worker stopped mid-write leaves them)."""
+    for folder, _, files in os.walk(output):
+        for f in files:
+            if f.startswith(".") and f"{TMP_MARK}{token}" in f:
+                with contextlib.suppress(FileNotFoundError):
+                    os.remove(os.path.join(folder, f))

@@ -25,12 +25,15 @@ from dataclasses import dataclass, field
 import torch
 
 from ..io import FormatError
-from ..io.stored import FrameSet, encode_depth, frame_set_tensors, read_frame_sets, write_like
+from ..io.encode import encode_depth
+from ..io.stored import FrameSet, frame_set_tensors, read_frame_sets, write_like
+from ..runtime import valid_mask
 from .config import CleanConfig
 from .manifest import input_identity, now
+from .measure import file_report
 from .plan import Job, temporary
 
-__all__ = ["Loaded", "compute_group", "load_group", "reason", "write_group"]
+__all__ = ["Loaded", "compute_group", "load_group", "read_jobs", "reason", "write_group"]
 
 
 @dataclass
@@ -42,6 +45,8 @@ class Loaded:
     sets: list[FrameSet] | None = None
     tensors: list[tuple[torch.Tensor, torch.Tensor]] | None = None
     cleaned: list[torch.Tensor] | None = None
+    gates: list[list[float]] | None = None
+    empty: int = 0
     identity: dict | None = None
     error: str | None = None
     seconds: dict = field(default_factory=lambda: {"read": 0.0, "compute": 0.0, "write": 0.0})
@@ -72,15 +77,37 @@ def load_group(jobs: list[Job], todo: set[str], config: CleanConfig) -> list[Loa
                 width=config.width,
                 depth_scale=config.depth_scale,
             )
-            item.tensors = [
-                frame_set_tensors(fs, f"{job.name}{' [' + fs.key + ']' if fs.key else ''}")
-                for fs in item.sets
-            ]
+            item.tensors = [frame_set_tensors(fs, allow_empty=True) for fs in item.sets]
         except Exception as exc:  # noqa: BLE001 -- bad input: recorded, the run goes on
             item.error, item.sets, item.tensors = reason(exc), None, None
         item.seconds["read"] = time.perf_counter() - t0
         out.append(item)
     return out
+
+
+def read_jobs(jobs: list[Job], config: CleanConfig, limit: int | None = None):
+    """``(depth, amplitude, camera)``: the readable frames of ``jobs`` in order, of the first
+    readable frame's size, at most ``limit``: (N, 1, H, W) metres and camera units (frames with no
+    valid pixel left out), and the first camera a file names (None if none does). What the
+    data-driven stages and ``tof-fpn calibrate`` measure. ``ValueError`` when there is none."""
+    depth, amplitude, camera = [], [], None
+    for job in jobs:
+        if job.error is not None:
+            continue
+        (item,) = load_group([job], set(), config)
+        for fs, (d, a) in zip(item.sets or [], item.tensors or [], strict=True):
+            camera = camera or fs.camera
+            if depth and d.shape[-2:] != depth[0].shape[-2:]:
+                continue
+            has = valid_mask(d, a).flatten(1).any(1)
+            depth.append(d[has])
+            amplitude.append(a[has])
+        if limit is not None and sum(x.shape[0] for x in depth) >= limit:
+            break
+    if not depth or sum(x.shape[0] for x in depth) == 0:
+        raise ValueError("no readable frame with a valid pixel in INPUT")
+    depth, amplitude = torch.cat(depth)[:limit], torch.cat(amplitude)[:limit]
+    return depth, amplitude, camera
 
 
 def compute_group(
@@ -90,14 +117,21 @@ def compute_group(
     per frame shape (module docstring); fills ``cleaned`` (CPU tensors) and the compute time."""
     device = torch.device(device)
     slots = []  # (shape, item, set index, frame index)
+    parts: dict[tuple[int, int], list[tuple[int, torch.Tensor]]] = {}
     for item in group:
         if item.error is not None:
             continue
         item.cleaned = [torch.empty(0)] * len(item.tensors)
-        for s, (depth, _) in enumerate(item.tensors):
-            slots += [(tuple(depth.shape[-2:]), item, s, f) for f in range(depth.shape[0])]
+        item.gates = [[] for _ in item.tensors]
+        for s, (depth, amplitude) in enumerate(item.tensors):
+            has = valid_mask(depth, amplitude).flatten(1).any(1).tolist()
+            for f in range(depth.shape[0]):
+                if has[f]:
+                    slots.append((tuple(depth.shape[-2:]), item, s, f))
+                else:  # no valid pixel: nothing to clean, the frame passes as it is
+                    parts.setdefault((id(item), s), []).append((f, depth[f : f + 1]))
+                    item.empty += 1
     shapes = list(dict.fromkeys(k for k, *_ in slots))
-    parts: dict[tuple[int, int], list[torch.Tensor]] = {}
     for shape in shapes:
         same = [x for x in slots if x[0] == shape]
         for b0 in range(0, len(same), batch):
@@ -107,6 +141,7 @@ def compute_group(
                 d = torch.cat([it.tensors[s][0][f : f + 1] for _, it, s, f in chunk]).to(device)
                 a = torch.cat([it.tensors[s][1][f : f + 1] for _, it, s, f in chunk]).to(device)
                 y = pipeline(d, a).cpu()
+                gates = pipeline.gates(d, a) if hasattr(pipeline, "gates") else None
             except Exception as exc:  # noqa: BLE001 -- recorded for the batch's files
                 for _, it, _, _ in chunk:
                     it.error = f"compute failed: {reason(exc)}"
@@ -114,31 +149,34 @@ def compute_group(
             share = (time.perf_counter() - t0) / len(chunk)
             for i, (_, it, s, f) in enumerate(chunk):
                 parts.setdefault((id(it), s), []).append((f, y[i : i + 1]))
+                if gates is not None:
+                    it.gates[s].append((f, float(gates[i])))
                 it.seconds["compute"] += share
     for item in group:
         if item.error is None and item.cleaned is not None:
             for s in range(len(item.cleaned)):
                 frames = sorted(parts.get((id(item), s), []), key=lambda p: p[0])
                 item.cleaned[s] = torch.cat([t for _, t in frames])
+                item.gates[s] = [g for _, g in sorted(item.gates[s])]
         if item.error is not None:
             item.cleaned = None
         item.tensors = None  # not needed any more (and not to be pickled back)
     return group
 
 
-def _write_job(item: Loaded, token: str) -> dict:
+def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
     job = item.job
     temps: list[tuple[str, str]] = []
     try:
         encoded, clamped = {}, 0
         for fs, y in zip(item.sets, item.cleaned, strict=True):
-            encoded[fs.key], n = encode_depth(fs, y)
+            encoded[fs.key], n = encode_depth(fs, y, config.rounding, config.output_scale)
             clamped += n
         for dst in job.outputs:
             os.makedirs(os.path.dirname(dst) or ".", exist_ok=True)
         tmp = temporary(job.out_depth, token)
         temps.append((tmp, job.out_depth))
-        write_like(job.depth, tmp, encoded, item.sets)
+        write_like(job.depth, tmp, encoded, item.sets, config.output_scale)
         if job.amplitude is not None:  # the amplitude is not changed: copied byte for byte
             tmp = temporary(job.out_amplitude, token)
             temps.append((tmp, job.out_amplitude))
@@ -154,10 +192,14 @@ def _write_job(item: Loaded, token: str) -> dict:
             except FileNotFoundError:
                 pass
         return {"error": f"write failed: {reason(exc)}"}
-    return {"clamped": clamped}
+    try:
+        report = file_report(item.sets, encoded, item.gates)
+    except Exception as exc:  # noqa: BLE001 -- the file is written; the record says why not
+        report = {"error": f"not measured: {reason(exc)}"}
+    return {"clamped": clamped, "report": report}
 
 
-def write_group(group: list[Loaded], token: str, root: str) -> list[dict]:
+def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig) -> list[dict]:
     """Encode and write the group's jobs to write (temporary name, then ``os.replace``); returns
     their manifest records (``root``: OUTPUT, to which the recorded output paths are relative)."""
     records = []
@@ -168,10 +210,14 @@ def write_group(group: list[Loaded], token: str, root: str) -> list[dict]:
         rec = {"file": job.name, "time": None}
         if item.error is None:
             t0 = time.perf_counter()
-            res = _write_job(item, token)
+            res = _write_job(item, token, config)
             item.seconds["write"] = time.perf_counter() - t0
             item.error = res.get("error")
             rec["clamped"] = res.get("clamped", 0)
+            if "report" in res:
+                rec["report"] = res["report"]
+            if item.empty:
+                rec["empty_frames"] = item.empty  # no valid pixel: written as they came
         if item.error is None:
             rec.update(
                 status="done",

@@ -19,7 +19,15 @@ from .. import __version__
 from ..design import RemezConvergenceError
 
 #: Sub-command modules under ``tof_fpn_torch.cli``, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("design", "export", "reproduce", "demo", "clean", "diagnose")
+COMMANDS: tuple[str, ...] = (
+    "design",
+    "export",
+    "demo",
+    "clean",
+    "calibrate",
+    "convert",
+    "diagnose",
+)
 
 
 class _ParseError(Exception):

@@ -15,8 +15,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-#: Smallest scene side (``--size``) the experiments accept
-#: (``tof_fpn_torch.experiments.common``; ``tests/test_cli.py`` checks the two agree).
+#: Smallest scene side (``--size``) the paper's synthetic data accept
+#: (:mod:`tof_fpn_torch.paper_data`; ``tests/test_cli.py`` checks the two agree).
 MIN_SIZE = 32
 #: Largest scene side (``--size``): memory and time grow with its square; 4096 is 20 times the
 #: CamCube side and takes about a minute for the demo, while 100 000 would exhaust the memory.

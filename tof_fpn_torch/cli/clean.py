@@ -3,9 +3,9 @@
 Stages and settings come from ``--config FILE.toml`` (format: :mod:`tof_fpn_torch.clean.config`)
 and flags (a flag wins over the file); the resolved configuration is saved as
 ``OUTPUT/clean.toml`` with the package version. Exit status: 0; 1 when some files failed (their
-count printed, their reasons in ``OUTPUT/manifest.jsonl``); 2 for a bad argument or an OUTPUT that
-would overwrite INPUT; ``128 + signal`` when stopped by SIGTERM / SIGINT (run the same command
-again to resume).
+count printed, their reasons in ``OUTPUT/manifest.jsonl``); 2 for a bad argument, an INPUT with
+nothing to clean or an OUTPUT that would overwrite INPUT; ``128 + signal`` when stopped by
+SIGTERM / SIGINT (run the same command again to resume).
 """
 
 from __future__ import annotations
@@ -49,14 +49,31 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Never overwrites INPUT; atomic writes; a killed run restarted skips finished files; "
         "OUTPUT/manifest.jsonl records every file.",
     )
-    p.add_argument("input", metavar="INPUT", help="a frame file or a directory (recursive)")
+    p.add_argument(
+        "input",
+        metavar="INPUT",
+        help="a frame file, a camera file (.mkv, .bag, ROS 2 bag, ADI raw) or a directory",
+    )
     p.add_argument("output", metavar="OUTPUT", help="output directory (made if missing)")
     p.add_argument("--config", metavar="FILE", help="TOML configuration (flags override it)")
-    g = p.add_argument_group("stages (default: the notch stage from the design, camera fusion)")
+    g = p.add_argument_group(
+        "stages (default: --stage auto, every piece measured on the first frames of INPUT)"
+    )
+    g.add_argument(
+        "--stage",
+        choices=CHOICES["stage"],
+        help="auto: notch, fusion and destriping measured on the data (default); paper: the "
+        "paper's CamCube notch stage with its 70 / 350 fusion",
+    )
     g.add_argument("--destripe", choices=CHOICES["destripe"], help="broadband offsets")
     g.add_argument("--notch", choices=CHOICES["notch"], help="periodic stripes")
     g.add_argument("--fusion", choices=CHOICES["fusion"], help="eq. (11) amplitude fusion")
     g.add_argument("--denoise", choices=DENOISE_CHOICES, help="denoiser after the FPN stage")
+    g.add_argument(
+        "--pattern",
+        metavar="FILE",
+        help="a fixed pattern from tof-fpn calibrate, removed from every frame first",
+    )
     g.add_argument(
         "--denoise-opt",
         type=_option,
@@ -77,6 +94,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--height", type=int_arg(1), help="rows of raw .bin / .raw frames")
     f.add_argument("--width", type=int_arg(1), help="columns of raw .bin / .raw frames")
     f.add_argument(
+        "--rounding",
+        choices=CHOICES["rounding"],
+        help="integer outputs: dither (default: sub-unit corrections survive in the mean) or "
+        "nearest",
+    )
+    f.add_argument(
+        "--output-scale",
+        type=float_arg(0.0, open_lo=True),
+        metavar="M",
+        help="integer outputs: metres per stored unit, e.g. 0.0001 (default: the input's)",
+    )
+    f.add_argument("--no-figure", action="store_true", help="do not draw OUTPUT/report.png")
+    f.add_argument(
         "--workers", type=int_arg(0, 256), default=0, help="DataLoader workers (default 0)"
     )
     f.add_argument("--device", default="auto", help="auto (GPU if any), cpu or cuda[:N]")
@@ -96,10 +126,12 @@ def config_from_args(args: argparse.Namespace) -> CleanConfig:
         options = {}
     options.update(dict(args.denoise_opt or []))
     return base.replace(
+        stage=args.stage,
         destripe=args.destripe,
         notch=args.notch,
         fusion=args.fusion,
         denoise=args.denoise,
+        pattern=None if args.pattern is None else os.path.abspath(args.pattern),
         denoise_options=options,
         order=args.order,
         rho=args.rho,
@@ -112,6 +144,8 @@ def config_from_args(args: argparse.Namespace) -> CleanConfig:
         depth_scale=args.depth_scale,
         height=args.height,
         width=args.width,
+        rounding=args.rounding,
+        output_scale=args.output_scale,
     )
 
 
@@ -131,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
         progress=False if args.quiet else None,
         concurrency=args.concurrency,
         ray_address=args.ray_address,
+        figure=not args.no_figure,
     )
     if report.created:
         print(f"created directory {args.output}")
@@ -146,8 +181,8 @@ def run(args: argparse.Namespace) -> int:
         )
     elif report.failed:
         print(
-            f"{prefix} {report.failed} of {report.jobs} file(s) failed; the reasons are in "
-            f"{os.path.join(args.output, 'manifest.jsonl')}",
+            f"{prefix} {report.failed} of {report.jobs} file(s) failed (reasons above and in "
+            f"{os.path.join(args.output, 'manifest.jsonl')})",
             file=sys.stderr,
         )
     return report.status

@@ -6,7 +6,7 @@ import argparse
 import inspect
 import os
 
-from ..experiments import run_demo
+from ..demo import run_demo
 from ._common import (
     MAX_SIZE,
     MIN_SIZE,
@@ -22,7 +22,7 @@ from ._common import (
 
 #: ``--out`` when not given.
 DEFAULT_OUT = "demo_out"
-#: The defaults of :func:`tof_fpn_torch.experiments.run_demo` (the CLI's defaults).
+#: The defaults of :func:`tof_fpn_torch.demo.run_demo` (the CLI's defaults).
 _DEMO = {k: v.default for k, v in inspect.signature(run_demo).parameters.items()}
 
 

@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--model",
         metavar="CHECKPOINT",
         help="export this trained whole model (front end + network; a checkpoint written by "
-        "scripts/train_front_ends.py or tof_fpn_torch.learn.save_model) instead of building a "
+        "examples/train_front_ends.py or tof_fpn_torch.learn.save_model) instead of building a "
         "stage; the outputs are checked against eager and the design options do not apply",
     )
     p.add_argument(
@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
         "rho": f.rho,
         "notches": list(f.notches),
         "dims": list(f.dims),
-        "adaptive": module.adaptive,
+        "adaptive": module.needs_amplitude,
         "fusion": None if module.fusion is None else [module.fusion.low, module.fusion.high],
         "gate": module.gate,
         "taps": int(f.taps.numel()),

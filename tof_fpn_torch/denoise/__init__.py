@@ -17,22 +17,25 @@ level (:mod:`tof_fpn_torch.denoise._common`), and returns invalid pixels unchang
 - :class:`LPAICI`: directional LPA kernels with the ICI rule (Katkovnik, Foi et al.).
 - :class:`Bilateral`, :class:`JointBilateral` (amplitude guide), :class:`Guided`: kornia's
   filters with masked invalid pixels and a range parameter that follows the noise.
-- :func:`get`, :func:`names`, :func:`module_class`: the registry (by name, for the CLI and ``tof-fpn clean``).
-- :func:`estimate_sigma`, :func:`estimate_noise_k`: robust noise-level estimators.
+- :data:`DENOISERS`, :func:`get`, :func:`names`, :func:`register`, :func:`module_class`: the one
+  registry (by name, for the CLI, ``tof-fpn clean`` and Table II).
+- :func:`estimate_sigma`, :func:`estimate_noise_k`: robust noise-level estimators (defined in
+  :mod:`tof_fpn_torch.runtime.noise`, re-exported here).
 """
 
-from ._sigma import estimate_noise_k, estimate_sigma
+from ..runtime.noise import estimate_noise_k, estimate_sigma
 from .bilateral import Bilateral, JointBilateral, bilateral, joint_bilateral
 from .bm3d import BM3D, bm3d
 from .guided import Guided, guided
 from .hypbi import HypothesisBilateral, hypothesis_bilateral
 from .lpa_ici import LPAICI, lpa_ici
 from .nlm import NonLocalMeans, non_local_means
-from .registry import canonical, describe, get, module_class, names, scriptable
+from .registry import DENOISERS, canonical, describe, get, module_class, names, register, scriptable
 from .sliding_dct import SlidingDCT, sliding_dct
 
 __all__ = [
     "BM3D",
+    "DENOISERS",
     "Bilateral",
     "Guided",
     "HypothesisBilateral",
@@ -54,6 +57,7 @@ __all__ = [
     "module_class",
     "names",
     "non_local_means",
+    "register",
     "scriptable",
     "sliding_dct",
 ]

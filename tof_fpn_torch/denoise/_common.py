@@ -24,22 +24,69 @@ r"""What every denoiser of this package shares (torch only, TorchScript-clean).
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 
+from .. import constants as K
 from ..runtime._checks import check_image
+from ..runtime.noise import wavelet_noise_k, wavelet_sigma
 from ..runtime.validity import valid_mask
-from ._sigma import _estimate_noise_k, _estimate_sigma
-from .nlm import _amplitude_floor, _check_sigma_tensor
 
 __all__ = [
+    "amplitude_floor",
+    "as_sigma",
     "check_amplitude",
+    "check_k",
+    "check_sigma_tensor",
     "check_window",
     "fill_invalid",
     "noise_map",
     "prepare",
     "restore_invalid",
 ]
+
+
+def amplitude_floor(amp: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """(B, 1, 1, 1): ``NLM_AMPLITUDE_FLOOR`` times the median of each image's valid amplitudes."""
+    pos = torch.where(valid & (amp > 0), amp, torch.full_like(amp, math.nan))
+    med = torch.nanmedian(pos.flatten(1), dim=1).values
+    return torch.nan_to_num(K.NLM_AMPLITUDE_FLOOR * med, nan=1.0).clamp_min(1e-30).view(-1, 1, 1, 1)
+
+
+@torch.jit.unused
+def as_sigma(sigma):
+    """Python numbers (int, NumPy scalars) as float; tensors and None as they are."""
+    if sigma is None or isinstance(sigma, (torch.Tensor, float)):
+        return sigma
+    if isinstance(sigma, (bool, str, bytes)):
+        raise ValueError(f"sigma must be a number, a tensor or None, got {type(sigma).__name__}")
+    try:
+        return float(sigma)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"sigma must be a number, a tensor or None, got {type(sigma).__name__}"
+        ) from None
+
+
+def check_sigma_tensor(sigma: torch.Tensor, B: int, H: int, W: int) -> None:
+    shape = list(sigma.shape)
+    ok = sigma.dim() == 0 or (sigma.dim() == 1 and (shape[0] == B or shape[0] == 1))
+    if sigma.dim() == 4:
+        ok = (
+            (shape[0] == B or shape[0] == 1)
+            and shape[1] == 1
+            and (shape[2] == H or shape[2] == 1)
+            and (shape[3] == W or shape[3] == 1)
+        )
+    if not ok:
+        raise ValueError(
+            f"sigma must be a float, a 0-d tensor, a (B,) tensor or a (B, 1, H, W) map "
+            f"(B={B}, H={H}, W={W}; size-1 axes broadcast), got shape {shape}"
+        )
+    if not sigma.is_floating_point():
+        raise ValueError(f"sigma must be a floating-point tensor, got dtype {sigma.dtype}")
 
 
 def check_amplitude(amplitude: torch.Tensor, depth: torch.Tensor) -> None:
@@ -91,20 +138,20 @@ def noise_map(
     vc = valid.expand(B, C, H, W)
     if sigma is None:
         if amp is None:
-            s = _estimate_sigma(xz, vc, wk).mean(dim=1).view(B, 1, 1, 1)
+            s = wavelet_sigma(xz, vc, wk).mean(dim=1).view(B, 1, 1, 1)
             return torch.where(valid, s.expand(B, 1, H, W), torch.zeros_like(valid, dtype=x.dtype))
         if k is None:
-            kk = _estimate_noise_k(xz, amp, vc, wk).mean(dim=1)
+            kk = wavelet_noise_k(xz, amp, vc, wk).mean(dim=1)
         else:
             kk = torch.full([B], k, dtype=x.dtype, device=x.device)
-        safe = torch.where(valid, amp.clamp_min(_amplitude_floor(amp, valid)), torch.ones_like(amp))
+        safe = torch.where(valid, amp.clamp_min(amplitude_floor(amp, valid)), torch.ones_like(amp))
         return torch.where(valid, kk.view(B, 1, 1, 1) / safe, torch.zeros_like(safe))
     if isinstance(sigma, float):
         if not (sigma >= 0.0 and sigma < float("inf")):
             raise ValueError(f"sigma must be a finite number >= 0, got {sigma}")
         s = torch.full([B, 1, H, W], sigma, dtype=x.dtype, device=x.device)
         return torch.where(valid, s, torch.zeros_like(s))
-    _check_sigma_tensor(sigma, B, H, W)
+    check_sigma_tensor(sigma, B, H, W)
     sg = sigma.detach().to(device=x.device, dtype=x.dtype)
     if sg.dim() == 4:
         sg = sg.expand(B, 1, H, W)

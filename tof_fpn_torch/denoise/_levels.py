@@ -16,7 +16,13 @@ import math
 
 import torch
 
-__all__ = ["blend", "check_levels", "levels"]
+__all__ = ["LEVEL_RATIO", "MAX_LEVELS", "blend", "check_levels", "levels"]
+
+#: Default ``ratio`` of the kornia-based denoisers (:mod:`.bilateral`, :mod:`.guided`): the noise
+#: levels of an image's filter bank are at most this factor apart ...
+LEVEL_RATIO: float = 1.25
+#: ... and at most this many (default ``max_levels``).
+MAX_LEVELS: int = 12
 
 
 def check_levels(ratio: float, max_levels: int) -> None:

@@ -33,12 +33,27 @@ import torch
 from kornia.filters import bilateral_blur, joint_bilateral_blur
 from torch import nn
 
-from ._common import check_k, check_window, noise_map, prepare, restore_invalid
-from ._levels import blend, check_levels, levels
-from ._sigma import _estimate_sigma, hh_kernel
-from .nlm import _as_sigma
+from ..runtime.noise import hh_kernel, wavelet_sigma
+from ._common import as_sigma, check_k, check_window, noise_map, prepare, restore_invalid
+from ._levels import LEVEL_RATIO, MAX_LEVELS, blend, check_levels, levels
 
-__all__ = ["Bilateral", "JointBilateral", "bilateral", "joint_bilateral"]
+__all__ = [
+    "BILATERAL_COLOR",
+    "BILATERAL_KERNEL_SIZE",
+    "BILATERAL_SIGMA_SPACE",
+    "Bilateral",
+    "JointBilateral",
+    "bilateral",
+    "joint_bilateral",
+]
+
+# Defaults of bilateral / joint_bilateral and their modules (written once; see the docstrings)
+#: window side ``kernel_size`` (odd)
+BILATERAL_KERNEL_SIZE: int = 9
+#: spatial standard deviation ``sigma_space`` (pixels)
+BILATERAL_SIGMA_SPACE: float = 3.0
+#: range standard deviation in noise standard deviations (``color``)
+BILATERAL_COLOR: float = 2.0
 
 
 def _check(kernel_size: int, sigma_space: float, color: float, sigma_color: float | None) -> None:
@@ -113,7 +128,7 @@ def _bilateral(
     max_levels: int,
     joint: bool,
 ) -> torch.Tensor:
-    sigma = _as_sigma(sigma)
+    sigma = as_sigma(sigma)
     _check(kernel_size, sigma_space, color, sigma_color)
     if joint and amplitude is None:
         raise ValueError("JointBilateral needs the amplitude (the guide)")
@@ -128,7 +143,7 @@ def _bilateral(
         assert amp is not None
         guide = torch.where(valid, amp, torch.zeros_like(amp))
         if sigma_color is None:
-            sa = _estimate_sigma(guide, valid, wavelet).reshape(B, 1, 1, 1)
+            sa = wavelet_sigma(guide, valid, wavelet).reshape(B, 1, 1, 1)
             rsig = (color * sa).expand(B, 1, H, W)
         else:
             rsig = torch.full((B, 1, H, W), sigma_color, dtype=x.dtype, device=x.device)
@@ -166,14 +181,14 @@ def bilateral(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    kernel_size: int = 9,
-    sigma_space: float = 3.0,
-    color: float = 2.0,
+    kernel_size: int = BILATERAL_KERNEL_SIZE,
+    sigma_space: float = BILATERAL_SIGMA_SPACE,
+    color: float = BILATERAL_COLOR,
     sigma_color: float | None = None,
     k: float | None = None,
     signed: bool = False,
-    ratio: float = 1.25,
-    max_levels: int = 12,
+    ratio: float = LEVEL_RATIO,
+    max_levels: int = MAX_LEVELS,
 ) -> torch.Tensor:
     r"""Bilateral filter of (B, C, H, W) depth (kornia's, masked, range sigma following the noise).
 
@@ -221,9 +236,9 @@ def joint_bilateral(
     depth: torch.Tensor,
     amplitude: torch.Tensor,
     sigma: float | torch.Tensor | None = None,
-    kernel_size: int = 9,
-    sigma_space: float = 3.0,
-    color: float = 2.0,
+    kernel_size: int = BILATERAL_KERNEL_SIZE,
+    sigma_space: float = BILATERAL_SIGMA_SPACE,
+    color: float = BILATERAL_COLOR,
     sigma_color: float | None = None,
     signed: bool = False,
 ) -> torch.Tensor:
@@ -259,14 +274,14 @@ class Bilateral(nn.Module):
 
     def __init__(
         self,
-        kernel_size: int = 9,
-        sigma_space: float = 3.0,
-        color: float = 2.0,
+        kernel_size: int = BILATERAL_KERNEL_SIZE,
+        sigma_space: float = BILATERAL_SIGMA_SPACE,
+        color: float = BILATERAL_COLOR,
         sigma_color: float | None = None,
         k: float | None = None,
         signed: bool = False,
-        ratio: float = 1.25,
-        max_levels: int = 12,
+        ratio: float = LEVEL_RATIO,
+        max_levels: int = MAX_LEVELS,
     ) -> None:
         super().__init__()
         _check(kernel_size, sigma_space, color, sigma_color)
@@ -301,9 +316,9 @@ class JointBilateral(nn.Module):
 
     def __init__(
         self,
-        kernel_size: int = 9,
-        sigma_space: float = 3.0,
-        color: float = 2.0,
+        kernel_size: int = BILATERAL_KERNEL_SIZE,
+        sigma_space: float = BILATERAL_SIGMA_SPACE,
+        color: float = BILATERAL_COLOR,
         sigma_color: float | None = None,
         signed: bool = False,
     ) -> None:

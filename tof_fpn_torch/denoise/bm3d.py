@@ -48,27 +48,47 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
-from ._sigma import hh_kernel
-from .bm3d_core import bm3d_image
-from .nlm import _as_sigma
+from ..runtime.noise import hh_kernel
+from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
+from .bm3d_core import bm3d_image, check_psd, psd_block_covariance
 
-__all__ = ["BM3D", "bm3d", "psd_block_covariance"]
+__all__ = [
+    "BM3D",
+    "BM3D_BETA",
+    "BM3D_BLOCK_SIZE",
+    "BM3D_FEATURES_WIENER",
+    "BM3D_LAM",
+    "BM3D_MAX_BLOCKS",
+    "BM3D_MU2",
+    "BM3D_SEARCH_RADIUS",
+    "BM3D_STEP",
+    "BM3D_TAU",
+    "BM3D_TRANSFORM_HT",
+    "bm3d",
+    "psd_block_covariance",
+]
 
-
-def psd_block_covariance(psd: torch.Tensor, n: int) -> tuple[torch.Tensor, float]:
-    """``(cov, var)``: the (n^2, n^2) covariance of the pixels of an ``n x n`` block (row-major)
-    relative to the pixel variance ``var``, for stationary noise with power spectrum ``psd``
-    (h, w) in the ``bm3d`` package's convention (``E|FFT(noise)|^2``, unnormalised FFT): the
-    autocorrelation is ``ifft2(psd) / (h w)``, taken circularly."""
-    h, w = psd.shape[-2], psd.shape[-1]
-    r = torch.fft.ifft2(psd.to(torch.float64)).real / float(h * w)
-    var = float(r[0, 0])
-    u = torch.arange(n)
-    yy = u.repeat_interleave(n)
-    xx = u.repeat(n)
-    cov = r[(yy[:, None] - yy[None, :]) % h, (xx[:, None] - xx[None, :]) % w]
-    return cov / var, var
+# Defaults of bm3d and BM3D (written once; see the docstrings)
+#: block side ``block_size``
+BM3D_BLOCK_SIZE: int = 8
+#: grid step of the reference blocks (``step``)
+BM3D_STEP: int = 3
+#: block-matching radius (``search_radius``)
+BM3D_SEARCH_RADIUS: int = 12
+#: largest group, hard thresholding and Wiener (``max_blocks``)
+BM3D_MAX_BLOCKS: tuple[int, int] = (16, 32)
+#: largest mean squared block distance per pixel over the noise variance, both stages (``tau``)
+BM3D_TAU: tuple[float, float] = (4.8, 0.64)
+#: hard threshold in noise standard deviations (``lam``)
+BM3D_LAM: float = 3.0
+#: Wiener regularisation times the noise variance (``mu2``)
+BM3D_MU2: float = 1.0
+#: features matched in the Wiener stage (``features_wiener``: ``block_size^2`` is exact)
+BM3D_FEATURES_WIENER: int = 64
+#: Kaiser window parameter of the aggregation (``beta``)
+BM3D_BETA: float = 2.0
+#: 2-D transform of the hard-thresholding stage (``transform_ht``)
+BM3D_TRANSFORM_HT: str = "bior1.5"
 
 
 def _check_params(
@@ -117,32 +137,21 @@ def _check_transform(transform_ht: str, block_size: int) -> None:
         )
 
 
-def _check_psd(psd: torch.Tensor, n: int) -> None:
-    if psd.dim() != 2 or not psd.is_floating_point():
-        raise ValueError(
-            f"psd must be a floating (h, w) tensor, got shape {list(psd.shape)} {psd.dtype}"
-        )
-    if psd.shape[0] < n or psd.shape[1] < n:
-        raise ValueError(f"psd must be at least block_size={n} per side, got {list(psd.shape)}")
-    if not bool(torch.isfinite(psd).all()) or bool((psd < 0).any()) or not bool((psd > 0).any()):
-        raise ValueError("psd must be finite, >= 0 and not all zero")
-
-
 def bm3d(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
     psd: torch.Tensor | None = None,
-    block_size: int = 8,
-    step: int = 3,
-    search_radius: int = 12,
-    max_blocks: tuple[int, int] = (16, 32),
-    tau: tuple[float, float] = (4.8, 0.64),
-    lam: float = 3.0,
-    mu2: float = 1.0,
-    features_wiener: int = 64,
-    beta: float = 2.0,
-    transform_ht: str = "bior1.5",
+    block_size: int = BM3D_BLOCK_SIZE,
+    step: int = BM3D_STEP,
+    search_radius: int = BM3D_SEARCH_RADIUS,
+    max_blocks: tuple[int, int] = BM3D_MAX_BLOCKS,
+    tau: tuple[float, float] = BM3D_TAU,
+    lam: float = BM3D_LAM,
+    mu2: float = BM3D_MU2,
+    features_wiener: int = BM3D_FEATURES_WIENER,
+    beta: float = BM3D_BETA,
+    transform_ht: str = BM3D_TRANSFORM_HT,
     k: float | None = None,
     signed: bool = False,
     wiener: bool = True,
@@ -226,7 +235,7 @@ def _bm3d(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check_params(block_size, step, search_radius, max_blocks, tau, lam, mu2, features_wiener, beta)
     _check_transform(transform_ht, block_size)
     x, valid, amp = prepare(depth, amplitude, signed)
@@ -241,7 +250,7 @@ def _bm3d(
     if psd is not None:
         if sigma is not None or amplitude is not None:
             raise ValueError("psd describes the noise: give it without sigma and amplitude")
-        _check_psd(psd, n)
+        check_psd(psd, n)
         cov, pvar = psd_block_covariance(psd.detach().cpu(), n)
         sig = torch.where(valid, torch.full_like(x[:, :1], pvar**0.5), torch.zeros_like(x[:, :1]))
     else:
@@ -296,16 +305,16 @@ class BM3D(nn.Module):
 
     def __init__(
         self,
-        block_size: int = 8,
-        step: int = 3,
-        search_radius: int = 12,
-        max_blocks: tuple[int, int] = (16, 32),
-        tau: tuple[float, float] = (4.8, 0.64),
-        lam: float = 3.0,
-        mu2: float = 1.0,
-        features_wiener: int = 64,
-        beta: float = 2.0,
-        transform_ht: str = "bior1.5",
+        block_size: int = BM3D_BLOCK_SIZE,
+        step: int = BM3D_STEP,
+        search_radius: int = BM3D_SEARCH_RADIUS,
+        max_blocks: tuple[int, int] = BM3D_MAX_BLOCKS,
+        tau: tuple[float, float] = BM3D_TAU,
+        lam: float = BM3D_LAM,
+        mu2: float = BM3D_MU2,
+        features_wiener: int = BM3D_FEATURES_WIENER,
+        beta: float = BM3D_BETA,
+        transform_ht: str = BM3D_TRANSFORM_HT,
         k: float | None = None,
         signed: bool = False,
         wiener: bool = True,

@@ -35,7 +35,14 @@ import torch.nn.functional as F
 
 from .bm3d_match import match
 
-__all__ = ["bior15_matrix", "bm3d_image", "dct_matrix", "separable"]
+__all__ = [
+    "bior15_matrix",
+    "bm3d_image",
+    "check_psd",
+    "dct_matrix",
+    "psd_block_covariance",
+    "separable",
+]
 
 
 def dct_matrix(n: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -280,3 +287,31 @@ def bm3d_image(
     wacc.zero_()
     _filter_groups(coef, pc.div_(rstd), var, rv, idx, sizes, lam, mu2, n2_wiener, acc, wacc, chunk)
     return _aggregate(acc, wacc, syn[0], syn[1], kw, Hc, Wc)
+
+
+def psd_block_covariance(psd: torch.Tensor, n: int) -> tuple[torch.Tensor, float]:
+    """``(cov, var)``: the (n^2, n^2) covariance of the pixels of an ``n x n`` block (row-major)
+    relative to the pixel variance ``var``, for stationary noise with power spectrum ``psd``
+    (h, w) in the ``bm3d`` package's convention (``E|FFT(noise)|^2``, unnormalised FFT): the
+    autocorrelation is ``ifft2(psd) / (h w)``, taken circularly."""
+    h, w = psd.shape[-2], psd.shape[-1]
+    r = torch.fft.ifft2(psd.to(torch.float64)).real / float(h * w)
+    var = float(r[0, 0])
+    u = torch.arange(n)
+    yy = u.repeat_interleave(n)
+    xx = u.repeat(n)
+    cov = r[(yy[:, None] - yy[None, :]) % h, (xx[:, None] - xx[None, :]) % w]
+    return cov / var, var
+
+
+def check_psd(psd: torch.Tensor, n: int) -> None:
+    """A noise power spectrum for blocks of side ``n``: floating (h, w), h, w >= n, finite, >= 0,
+    not all zero (ValueError otherwise)."""
+    if psd.dim() != 2 or not psd.is_floating_point():
+        raise ValueError(
+            f"psd must be a floating (h, w) tensor, got shape {list(psd.shape)} {psd.dtype}"
+        )
+    if psd.shape[0] < n or psd.shape[1] < n:
+        raise ValueError(f"psd must be at least block_size={n} per side, got {list(psd.shape)}")
+    if not bool(torch.isfinite(psd).all()) or bool((psd < 0).any()) or not bool((psd > 0).any()):
+        raise ValueError("psd must be finite, >= 0 and not all zero")

@@ -32,12 +32,27 @@ import torch
 from kornia.filters import guided_blur
 from torch import nn
 
-from ._common import check_k, check_window, fill_invalid, noise_map, prepare, restore_invalid
-from ._levels import blend, check_levels, levels
-from ._sigma import _estimate_sigma, hh_kernel
-from .nlm import _as_sigma
+from ..runtime.noise import hh_kernel, wavelet_sigma
+from ._common import (
+    as_sigma,
+    check_k,
+    check_window,
+    fill_invalid,
+    noise_map,
+    prepare,
+    restore_invalid,
+)
+from ._levels import LEVEL_RATIO, MAX_LEVELS, blend, check_levels, levels
 
-__all__ = ["Guided", "guided"]
+__all__ = ["GUIDED_COLOR", "GUIDED_GUIDE", "GUIDED_KERNEL_SIZE", "Guided", "guided"]
+
+# Defaults of guided and Guided (written once; see the docstrings)
+#: window side ``kernel_size`` (odd)
+GUIDED_KERNEL_SIZE: int = 9
+#: ``eps = (color * sigma(p))^2`` (``color``)
+GUIDED_COLOR: float = 2.0
+#: the guide (``guide``: ``'depth'``, self-guided, or ``'amplitude'``)
+GUIDED_GUIDE: str = "depth"
 
 
 def _check(kernel_size: int, color: float, eps: float | None, guide: str) -> None:
@@ -57,14 +72,14 @@ def guided(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    kernel_size: int = 9,
-    color: float = 2.0,
+    kernel_size: int = GUIDED_KERNEL_SIZE,
+    color: float = GUIDED_COLOR,
     eps: float | None = None,
-    guide: str = "depth",
+    guide: str = GUIDED_GUIDE,
     k: float | None = None,
     signed: bool = False,
-    ratio: float = 1.25,
-    max_levels: int = 12,
+    ratio: float = LEVEL_RATIO,
+    max_levels: int = MAX_LEVELS,
 ) -> torch.Tensor:
     r"""Guided filter of (B, C, H, W) depth (kornia's, with holes and a noise-following ``eps``).
 
@@ -83,7 +98,7 @@ def guided(
         (B, C, H, W), dtype of ``depth``; invalid pixels unchanged; images without noise or
         without valid pixels unchanged.
     """
-    sigma = _as_sigma(sigma)
+    sigma = as_sigma(sigma)
     _check(kernel_size, color, eps, guide)
     if guide == "amplitude" and amplitude is None:
         raise ValueError("guide='amplitude' needs the amplitude")
@@ -97,7 +112,7 @@ def guided(
         assert amp is not None
         g = fill_invalid(amp, valid)
         if eps is None:
-            sa = _estimate_sigma(torch.where(valid, amp, torch.zeros_like(amp)), valid, wavelet)
+            sa = wavelet_sigma(torch.where(valid, amp, torch.zeros_like(amp)), valid, wavelet)
             rsig = (color * sa.reshape(B, 1, 1, 1)).expand(B, 1, H, W)
         else:
             rsig = torch.full((B, 1, H, W), eps**0.5, dtype=x.dtype, device=x.device)
@@ -135,14 +150,14 @@ class Guided(nn.Module):
 
     def __init__(
         self,
-        kernel_size: int = 9,
-        color: float = 2.0,
+        kernel_size: int = GUIDED_KERNEL_SIZE,
+        color: float = GUIDED_COLOR,
         eps: float | None = None,
-        guide: str = "depth",
+        guide: str = GUIDED_GUIDE,
         k: float | None = None,
         signed: bool = False,
-        ratio: float = 1.25,
-        max_levels: int = 12,
+        ratio: float = LEVEL_RATIO,
+        max_levels: int = MAX_LEVELS,
     ) -> None:
         super().__init__()
         _check(kernel_size, color, eps, guide)

@@ -37,11 +37,33 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import check_k, noise_map, prepare, restore_invalid
-from ._sigma import _estimate_sigma, hh_kernel
-from .nlm import _as_sigma
+from ..runtime.noise import hh_kernel, wavelet_sigma
+from ._common import as_sigma, check_k, noise_map, prepare, restore_invalid
 
-__all__ = ["HypothesisBilateral", "hypothesis_bilateral"]
+__all__ = [
+    "HYPBI_COLOR",
+    "HYPBI_HYPOTHESES",
+    "HYPBI_ITERATIONS",
+    "HYPBI_KERNEL_SIZE",
+    "HYPBI_SIGMA_SPACE",
+    "HYPBI_TRUNC",
+    "HypothesisBilateral",
+    "hypothesis_bilateral",
+]
+
+# Defaults of hypothesis_bilateral and HypothesisBilateral (written once; see the docstrings)
+#: hypotheses ``L`` per pixel (``hypotheses``; odd keeps the current depth one)
+HYPBI_HYPOTHESES: int = 13
+#: bilateral window side ``kernel_size``
+HYPBI_KERNEL_SIZE: int = 7
+#: spatial standard deviation ``sigma_space`` (pixels)
+HYPBI_SIGMA_SPACE: float = 2.0
+#: range sigma in units of the guide's noise (``color``)
+HYPBI_COLOR: float = 2.0
+#: cost truncation and hypothesis half-range in noise standard deviations (``trunc``)
+HYPBI_TRUNC: float = 3.0
+#: cost-volume passes (``iterations``)
+HYPBI_ITERATIONS: int = 1
 
 
 def _check(
@@ -129,13 +151,13 @@ def hypothesis_bilateral(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    hypotheses: int = 13,
-    kernel_size: int = 7,
-    sigma_space: float = 2.0,
-    color: float = 2.0,
+    hypotheses: int = HYPBI_HYPOTHESES,
+    kernel_size: int = HYPBI_KERNEL_SIZE,
+    sigma_space: float = HYPBI_SIGMA_SPACE,
+    color: float = HYPBI_COLOR,
     sigma_color: float | None = None,
-    trunc: float = 3.0,
-    iterations: int = 1,
+    trunc: float = HYPBI_TRUNC,
+    iterations: int = HYPBI_ITERATIONS,
     k: float | None = None,
     signed: bool = False,
 ) -> torch.Tensor:
@@ -191,7 +213,7 @@ def _hypothesis_bilateral(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check(hypotheses, kernel_size, sigma_space, color, sigma_color, trunc, iterations)
     x, valid, amp = prepare(depth, amplitude, signed)
     B, C, H, W = x.shape
@@ -210,7 +232,7 @@ def _hypothesis_bilateral(
             if amp is not None:
                 guide = torch.where(vb, amp[b : b + 1], torch.zeros_like(sb))
                 if sigma_color is None:
-                    sa = _estimate_sigma(guide, vb, wk).reshape(1, 1, 1, 1)
+                    sa = wavelet_sigma(guide, vb, wk).reshape(1, 1, 1, 1)
                     sc = color * sa
                 else:
                     sc = torch.full([1, 1, 1, 1], sigma_color, dtype=x.dtype, device=x.device)
@@ -237,13 +259,13 @@ class HypothesisBilateral(nn.Module):
 
     def __init__(
         self,
-        hypotheses: int = 13,
-        kernel_size: int = 7,
-        sigma_space: float = 2.0,
-        color: float = 2.0,
+        hypotheses: int = HYPBI_HYPOTHESES,
+        kernel_size: int = HYPBI_KERNEL_SIZE,
+        sigma_space: float = HYPBI_SIGMA_SPACE,
+        color: float = HYPBI_COLOR,
         sigma_color: float | None = None,
-        trunc: float = 3.0,
-        iterations: int = 1,
+        trunc: float = HYPBI_TRUNC,
+        iterations: int = HYPBI_ITERATIONS,
         k: float | None = None,
         signed: bool = False,
     ) -> None:

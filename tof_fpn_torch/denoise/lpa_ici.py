@@ -33,11 +33,28 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
-from ._sigma import hh_kernel
-from .nlm import _as_sigma
+from ..runtime.noise import hh_kernel
+from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
 
-__all__ = ["LPAICI", "lpa_ici", "lpa_kernels"]
+__all__ = [
+    "LPAICI",
+    "LPA_DIRECTIONS",
+    "LPA_GAMMA",
+    "LPA_ORDER",
+    "LPA_SCALES",
+    "lpa_ici",
+    "lpa_kernels",
+]
+
+# Defaults of lpa_ici and LPAICI (written once; see the docstrings)
+#: kernel directions (``directions``)
+LPA_DIRECTIONS: int = 8
+#: increasing scales ``h`` (``scales``): sectors of radius ``h - 1`` pixels
+LPA_SCALES: tuple[int, ...] = (1, 2, 3, 5, 7, 11)
+#: LPA order along the direction (``order``, 0 or 1)
+LPA_ORDER: int = 0
+#: ICI threshold ``gamma`` (confidence intervals of ``gamma`` standard deviations)
+LPA_GAMMA: float = 1.5
 
 
 def lpa_kernels(directions: int, scales: list[int], order: int) -> torch.Tensor:
@@ -130,10 +147,10 @@ def lpa_ici(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    directions: int = 8,
-    scales: tuple[int, ...] = (1, 2, 3, 5, 7, 11),
-    order: int = 0,
-    gamma: float = 1.5,
+    directions: int = LPA_DIRECTIONS,
+    scales: tuple[int, ...] = LPA_SCALES,
+    order: int = LPA_ORDER,
+    gamma: float = LPA_GAMMA,
     k: float | None = None,
     signed: bool = False,
 ) -> torch.Tensor:
@@ -189,7 +206,7 @@ def _lpa_ici(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check(directions, scales, order, gamma)
     x, valid, amp = prepare(depth, amplitude, signed)
     B, C, H, W = x.shape
@@ -224,10 +241,10 @@ class LPAICI(nn.Module):
 
     def __init__(
         self,
-        directions: int = 8,
-        scales: tuple[int, ...] = (1, 2, 3, 5, 7, 11),
-        order: int = 0,
-        gamma: float = 1.5,
+        directions: int = LPA_DIRECTIONS,
+        scales: tuple[int, ...] = LPA_SCALES,
+        order: int = LPA_ORDER,
+        gamma: float = LPA_GAMMA,
         k: float | None = None,
         signed: bool = False,
     ) -> None:

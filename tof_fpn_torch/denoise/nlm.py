@@ -53,33 +53,29 @@ from torch import nn
 
 from .. import constants as K
 from ..runtime._checks import check_image
+from ..runtime.noise import hh_kernel, wavelet_noise_k, wavelet_sigma
 from ..runtime.validity import valid_mask
-from ._sigma import _estimate_noise_k, _estimate_sigma, hh_kernel
+from ._common import amplitude_floor, as_sigma, check_sigma_tensor
 from .nlm_core import nlm_core, patch_taps
 
-__all__ = ["NonLocalMeans", "non_local_means"]
+__all__ = [
+    "NLM_H",
+    "NLM_KERNEL",
+    "NLM_PATCH_DISTANCE",
+    "NLM_PATCH_SIZE",
+    "NonLocalMeans",
+    "non_local_means",
+]
 
-
-def _amplitude_floor(amp: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """(B, 1, 1, 1): ``NLM_AMPLITUDE_FLOOR`` times the median of each image's valid amplitudes."""
-    pos = torch.where(valid & (amp > 0), amp, torch.full_like(amp, math.nan))
-    med = torch.nanmedian(pos.flatten(1), dim=1).values
-    return torch.nan_to_num(K.NLM_AMPLITUDE_FLOOR * med, nan=1.0).clamp_min(1e-30).view(-1, 1, 1, 1)
-
-
-@torch.jit.unused
-def _as_sigma(sigma):
-    """Python numbers (int, NumPy scalars) as float; tensors and None as they are."""
-    if sigma is None or isinstance(sigma, (torch.Tensor, float)):
-        return sigma
-    if isinstance(sigma, (bool, str, bytes)):
-        raise ValueError(f"sigma must be a number, a tensor or None, got {type(sigma).__name__}")
-    try:
-        return float(sigma)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"sigma must be a number, a tensor or None, got {type(sigma).__name__}"
-        ) from None
+# Defaults of non_local_means and NonLocalMeans (written once; see the docstrings)
+#: odd patch side ``patch_size``
+NLM_PATCH_SIZE: int = 7
+#: search radius ``patch_distance``
+NLM_PATCH_DISTANCE: int = 10
+#: filtering parameter ``h`` relative to the noise level (skimage's recommendation for box NLM)
+NLM_H: float = 0.8
+#: patch weighting ``kernel``
+NLM_KERNEL: str = "box"
 
 
 def _check_params(
@@ -98,35 +94,16 @@ def _check_params(
             raise ValueError(f"k must be None (estimate it) or a finite number > 0, got {k}")
 
 
-def _check_sigma_tensor(sigma: torch.Tensor, B: int, H: int, W: int) -> None:
-    shape = list(sigma.shape)
-    ok = sigma.dim() == 0 or (sigma.dim() == 1 and (shape[0] == B or shape[0] == 1))
-    if sigma.dim() == 4:
-        ok = (
-            (shape[0] == B or shape[0] == 1)
-            and shape[1] == 1
-            and (shape[2] == H or shape[2] == 1)
-            and (shape[3] == W or shape[3] == 1)
-        )
-    if not ok:
-        raise ValueError(
-            f"sigma must be a float, a 0-d tensor, a (B,) tensor or a (B, 1, H, W) map "
-            f"(B={B}, H={H}, W={W}; size-1 axes broadcast), got shape {shape}"
-        )
-    if not sigma.is_floating_point():
-        raise ValueError(f"sigma must be a floating-point tensor, got dtype {sigma.dtype}")
-
-
 def non_local_means(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    patch_size: int = 7,
-    patch_distance: int = 10,
-    h: float = 0.8,
+    patch_size: int = NLM_PATCH_SIZE,
+    patch_distance: int = NLM_PATCH_DISTANCE,
+    h: float = NLM_H,
     k: float | None = None,
     signed: bool = False,
-    kernel: str = "box",
+    kernel: str = NLM_KERNEL,
 ) -> torch.Tensor:
     r"""Non-local means denoising of a batch of depth maps (Buades et al., CVPR 2005).
 
@@ -194,7 +171,7 @@ def _non_local_means(
     """:func:`non_local_means` with the (1, 1, 4, 4) ``db2`` detail kernel passed in."""
     check_image(depth, "depth")
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check_params(patch_size, patch_distance, h, k, kernel)
     B, C, H, W = depth.shape
     if H < 1 or W < 1:
@@ -219,27 +196,46 @@ def _non_local_means(
     all_valid = bool(valid.all())
     x = torch.where(valid, x, torch.zeros_like(x))
     wkernel = wavelet.to(device=x.device, dtype=work_dtype)
-    valid_c = valid.expand(B, C, H, W)
+    half_var, sig_img = _noise(x, valid, amp, amplitude is not None, sigma, k, wkernel)
+    scale = _input_scale(x, half_var, sig_img, all_valid, patch_size, h)
+    out = _chunks(x, valid, all_valid, scale, half_var, patch_size, patch_distance, h, kernel)
+    out = torch.where(valid, out, depth.detach().to(work_dtype))
+    return out.to(depth.dtype)
 
+
+def _noise(
+    x: torch.Tensor,
+    valid: torch.Tensor,
+    amp: torch.Tensor,
+    has_amp: bool,
+    sigma: float | torch.Tensor | None,
+    k: float | None,
+    wkernel: torch.Tensor,
+) -> tuple[torch.Tensor | None, torch.Tensor]:
+    """``(half_var, sig_img)``: the noise map's ``sigma^2 / 2`` (B, 1, H, W) where the noise
+    varies per pixel (``k / A``, or a given map), else None and the per-image level (B, 1, 1, 1)
+    (estimated, or given); see the module docstring."""
+    B, C, H, W = x.shape
+    valid_c = valid.expand(B, C, H, W)
     half_var: torch.Tensor | None = None
-    sig_img = torch.zeros(B, 1, 1, 1, dtype=work_dtype, device=x.device)
-    if amplitude is not None and sigma is None:
+    sig_img = torch.zeros(B, 1, 1, 1, dtype=x.dtype, device=x.device)
+    if has_amp and sigma is None:
         if k is None:
-            kk = _estimate_noise_k(x, amp, valid_c, wkernel).mean(dim=1)
+            kk = wavelet_noise_k(x, amp, valid_c, wkernel).mean(dim=1)
         else:
-            kk = torch.full([B], k, dtype=work_dtype, device=x.device)
-        safe = torch.where(valid, amp.clamp_min(_amplitude_floor(amp, valid)), torch.ones_like(amp))
+            kk = torch.full([B], k, dtype=x.dtype, device=x.device)
+        safe = torch.where(valid, amp.clamp_min(amplitude_floor(amp, valid)), torch.ones_like(amp))
         sig_map = kk.view(B, 1, 1, 1) / safe
         half_var = torch.where(valid, 0.5 * sig_map * sig_map, torch.zeros_like(sig_map))
     elif sigma is None:
-        sig_img = _estimate_sigma(x, valid_c, wkernel).mean(dim=1).view(B, 1, 1, 1)
+        sig_img = wavelet_sigma(x, valid_c, wkernel).mean(dim=1).view(B, 1, 1, 1)
     elif isinstance(sigma, float):
         if not (sigma >= 0.0 and sigma < float("inf")):
             raise ValueError(f"sigma must be a finite number >= 0, got {sigma}")
-        sig_img = torch.full([B, 1, 1, 1], sigma, dtype=work_dtype, device=x.device)
+        sig_img = torch.full([B, 1, 1, 1], sigma, dtype=x.dtype, device=x.device)
     else:
-        _check_sigma_tensor(sigma, B, H, W)
-        sg = sigma.detach().to(device=x.device, dtype=work_dtype)
+        check_sigma_tensor(sigma, B, H, W)
+        sg = sigma.detach().to(device=x.device, dtype=x.dtype)
         if sg.dim() == 4 and (sg.shape[2] != 1 or sg.shape[3] != 1):
             sg = sg.expand(B, 1, H, W)
             bad = valid & ~(torch.isfinite(sg) & (sg >= 0))
@@ -255,22 +251,49 @@ def _non_local_means(
             if not bool((torch.isfinite(sg) & (sg >= 0)).all()):
                 raise ValueError(f"sigma must be finite and >= 0, got minimum {float(sg.min())}")
             sig_img = sg
+    return half_var, sig_img
 
-    s = patch_size
-    d = patch_distance
+
+def _input_scale(
+    x: torch.Tensor,
+    half_var: torch.Tensor | None,
+    sig_img: torch.Tensor,
+    all_valid: bool,
+    s: int,
+    h: float,
+) -> torch.Tensor:
+    """(B, 1, 1, 1) ``sqrt(log2 e) / (h sigma sqrt(C))`` (times ``1 / s`` without holes), the
+    factor :func:`~tof_fpn_torch.denoise.nlm_core.nlm_core` folds into its input (without the
+    ``1 / sigma`` where a noise map sets the weights)."""
+    B, C = x.shape[0], x.shape[1]
     inv_s = 1.0 if not all_valid else 1.0 / s
     if half_var is None:
         # a zero noise level keeps only identical patches; floor it to stay finite
         amax = x.abs().amax(dim=(1, 2, 3)).view(B, 1, 1, 1)
         sig_img = torch.maximum(sig_img, 1e-7 * amax + 1e-30)
-        scale = math.sqrt(K.LOG2_E) * inv_s / (h * math.sqrt(C)) / sig_img
-    else:
-        scale = torch.full(
-            [B, 1, 1, 1],
-            math.sqrt(K.LOG2_E) * inv_s / (h * math.sqrt(C)),
-            dtype=work_dtype,
-            device=x.device,
-        )
+        return math.sqrt(K.LOG2_E) * inv_s / (h * math.sqrt(C)) / sig_img
+    return torch.full(
+        [B, 1, 1, 1],
+        math.sqrt(K.LOG2_E) * inv_s / (h * math.sqrt(C)),
+        dtype=x.dtype,
+        device=x.device,
+    )
+
+
+def _chunks(
+    x: torch.Tensor,
+    valid: torch.Tensor,
+    all_valid: bool,
+    scale: torch.Tensor,
+    half_var: torch.Tensor | None,
+    s: int,
+    d: int,
+    h: float,
+    kernel: str,
+) -> torch.Tensor:
+    """:func:`~tof_fpn_torch.denoise.nlm_core.nlm_core` over chunks of the batch (at most ~2M
+    padded values each)."""
+    B, C, H, W = x.shape
     taps = patch_taps(s, kernel)
     per_image = C * (H + 2 * d + s) * (W + 2 * d + s)
     chunk = max(1, 2097152 // per_image)
@@ -279,14 +302,12 @@ def _non_local_means(
         b1 = min(B, b0 + chunk)
         vmask: torch.Tensor | None = None
         if not all_valid:
-            vmask = valid[b0:b1].to(work_dtype)
+            vmask = valid[b0:b1].to(x.dtype)
         hv: torch.Tensor | None = None
         if half_var is not None:
             hv = half_var[b0:b1]
         outs.append(nlm_core(x[b0:b1], vmask, scale[b0:b1], hv, s, d, h, taps))
-    out = torch.cat(outs, 0)
-    out = torch.where(valid, out, depth.detach().to(work_dtype))
-    return out.to(depth.dtype)
+    return torch.cat(outs, 0)
 
 
 class NonLocalMeans(nn.Module):
@@ -320,12 +341,12 @@ class NonLocalMeans(nn.Module):
 
     def __init__(
         self,
-        patch_size: int = 7,
-        patch_distance: int = 10,
-        h: float = 0.8,
+        patch_size: int = NLM_PATCH_SIZE,
+        patch_distance: int = NLM_PATCH_DISTANCE,
+        h: float = NLM_H,
         k: float | None = None,
         signed: bool = False,
-        kernel: str = "box",
+        kernel: str = NLM_KERNEL,
     ) -> None:
         super().__init__()
         for name, v in (("patch_size", patch_size), ("patch_distance", patch_distance)):

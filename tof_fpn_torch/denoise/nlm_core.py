@@ -112,6 +112,21 @@ def _offsets(d: int) -> list[tuple[int, int]]:
     return out
 
 
+def _patch_noise(
+    hvp: torch.Tensor, vpp: torch.Tensor | None, s: int, taps: list[float]
+) -> torch.Tensor:
+    """(B, 1, H + 2d, W + 2d) patch mean ``V`` of ``sigma^2 / 2`` (padded ``hvp``), over the valid
+    pixels ``vpp`` (padded 0/1, or None: all), with the patch weights ``taps`` (box if empty)."""
+    g1 = torch.tensor(taps if len(taps) > 0 else [1.0] * s, dtype=hvp.dtype, device=hvp.device)
+    g1 = g1 / s
+    g2 = torch.outer(g1, g1).reshape(1, 1, s, s)
+    if vpp is None:
+        vbar = F.conv2d(hvp, g2)
+    else:
+        vbar = F.conv2d(hvp * vpp, g2) / F.conv2d(vpp, g2).clamp_min(1e-6)
+    return vbar.clamp_min(1e-30)
+
+
 def nlm_core(
     x: torch.Tensor,
     valid: torch.Tensor | None,
@@ -130,7 +145,12 @@ def nlm_core(
 
     Every per-offset op is a 1-D op on the flat padded grid (row stride ``Wp``, image stride
     ``Hp * Wp``): the shifted copy of the padded image is a flat slice, and the columns and rows
-    that fall outside an offset's region hold garbage that is never read."""
+    that fall outside an offset's region hold garbage that is never read.
+
+    The loop over the offsets cannot be split: it is the TorchScript kernel's hot loop, and its
+    nine flat workspaces (allocated once, outside it) are re-viewed per offset as slices and
+    strided views of one another; a helper per step would take them all, and the offsets'
+    region arithmetic, as some twenty arguments."""
     B, C, H, W = x.shape
     r = s // 2
     E = d + r
@@ -155,15 +175,8 @@ def nlm_core(
         vdp = reflect_pad(valid, d)
     vbar = torch.empty(0, dtype=dt, device=dev)
     if half_var is not None:
-        hvp = reflect_pad(half_var, E)
-        g1 = torch.tensor(taps if len(taps) > 0 else [1.0] * s, dtype=dt, device=dev) / s
-        g2 = torch.outer(g1, g1).reshape(1, 1, s, s)
-        if valid is None:
-            vbar = F.conv2d(hvp, g2)
-        else:
-            vpp = vpf.view(B, 1, Hp, Wp)
-            vbar = F.conv2d(hvp * vpp, g2) / F.conv2d(vpp, g2).clamp_min(1e-6)
-        vbar = vbar.clamp_min(1e-30)  # (B, 1, H + 2d, W + 2d)
+        vpp = None if valid is None else vpf.view(B, 1, Hp, Wp)
+        vbar = _patch_noise(reflect_pad(half_var, E), vpp, s, taps)
 
     diff = torch.empty(B * C * plane, dtype=dt, device=dev)
     n1 = B * plane

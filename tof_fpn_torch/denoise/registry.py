@@ -1,10 +1,15 @@
-r"""The denoisers by name, for the CLI and ``tof-fpn clean``: :func:`get`, :func:`names`.
+r"""The denoisers by name: the one registry of the package (the CLI, ``tof-fpn clean``, Table II).
 
-Every entry is an ``nn.Module`` whose ``forward(depth, amplitude=None, sigma=None)`` takes
-(B, C, H, W) depth, an optional (B, 1, H, W) amplitude and an optional noise level, and returns
-invalid pixels unchanged (:mod:`tof_fpn_torch.denoise`). Names are case-insensitive and ``_``
-and ``-`` are the same; a few aliases (``sliding-dct``, ``lpaici``, ...) map to the canonical
-names that :func:`names` lists.
+:data:`DENOISERS` maps a name to a factory ``factory(**options) -> nn.Module``; the built-in
+entries are the module classes of :mod:`tof_fpn_torch.denoise`, whose ``forward(depth,
+amplitude=None, sigma=None)`` takes (B, C, H, W) depth, an optional (B, 1, H, W) amplitude and an
+optional noise level, and returns invalid pixels unchanged. :func:`register` adds one (``tof-fpn
+clean``'s ``register_denoiser`` is this function, its ``DENOISERS`` this dict).
+
+Names are case-insensitive and ``_`` and ``-`` are the same; a few aliases (``sliding-dct``,
+``lpaici``, ...) map to the canonical names that :func:`names` lists. A registered name is also
+found exactly as it was registered. :func:`get` checks the options against the factory's
+signature (the one check; a factory taking ``**kwargs`` takes anything).
 
 Example:
     >>> from tof_fpn_torch import denoise
@@ -21,31 +26,38 @@ from collections.abc import Callable
 
 from torch import nn
 
-__all__ = ["canonical", "describe", "get", "module_class", "names", "scriptable"]
+from .bilateral import Bilateral, JointBilateral
+from .bm3d import BM3D
+from .guided import Guided
+from .hypbi import HypothesisBilateral
+from .lpa_ici import LPAICI
+from .nlm import NonLocalMeans
+from .sliding_dct import SlidingDCT
 
+__all__ = [
+    "DENOISERS",
+    "canonical",
+    "describe",
+    "get",
+    "module_class",
+    "names",
+    "register",
+    "scriptable",
+]
 
-def _classes() -> dict[str, Callable[..., nn.Module]]:
-    """Canonical name -> module class (imported here: the registry is the one index)."""
-    from .bilateral import Bilateral, JointBilateral
-    from .bm3d import BM3D
-    from .guided import Guided
-    from .hypbi import HypothesisBilateral
-    from .lpa_ici import LPAICI
-    from .nlm import NonLocalMeans
-    from .sliding_dct import SlidingDCT
-
-    out: dict[str, Callable[..., nn.Module]] = {
-        "nlm": NonLocalMeans,
-        "bm3d": BM3D,
-        "sdct": SlidingDCT,
-        "hypbi": HypothesisBilateral,
-        "lpa-ici": LPAICI,
-        "bilateral": Bilateral,
-        "joint-bilateral": JointBilateral,
-        "guided": Guided,
-    }
-    return out
-
+#: name -> factory(**options) -> module ``(depth, amplitude=None, ...) -> depth``: the built-in
+#: denoisers in the paper's order (NLM, BM3D, sDCT, HypBi, LPA-ICI), then the kornia-based filters,
+#: then whatever :func:`register` adds
+DENOISERS: dict[str, Callable[..., nn.Module]] = {
+    "nlm": NonLocalMeans,
+    "bm3d": BM3D,
+    "sdct": SlidingDCT,
+    "hypbi": HypothesisBilateral,
+    "lpa-ici": LPAICI,
+    "bilateral": Bilateral,
+    "joint-bilateral": JointBilateral,
+    "guided": Guided,
+}
 
 #: alias -> canonical name (after lower-casing and ``_`` -> ``-``)
 _ALIASES: dict[str, str] = {
@@ -69,35 +81,69 @@ _SCRIPTABLE = {"nlm", "bm3d", "sdct", "hypbi", "lpa-ici"}
 def _canonical(name: str) -> str:
     if not isinstance(name, str):
         raise ValueError(f"denoiser name must be a string, got {type(name).__name__}")
+    if name in DENOISERS:
+        return name
     key = name.strip().lower().replace("_", "-")
     key = _ALIASES.get(key, key)
-    if key not in _classes():
+    if key not in DENOISERS:
         raise ValueError(f"unknown denoiser {name!r}; choose one of {names()}")
     return key
 
 
+def register(name: str, factory: Callable[..., nn.Module]) -> None:
+    """Add a denoiser under ``name`` (``denoise = "<name>"`` in ``tof-fpn clean``'s
+    configuration, ``--denoise <name>``); an existing name is replaced.
+
+    ``factory(**options)`` gets the options (``tof-fpn clean``'s ``[denoise]`` table) and returns a
+    module called as ``module(depth, amplitude)`` on (B, 1, H, W) depth (NaN invalid) and
+    amplitude, returning depth with invalid pixels unchanged.
+
+    Raises:
+        ValueError: ``name`` is not an identifier, or is ``"none"`` (which means no denoiser), or
+            ``factory`` is not callable.
+    """
+    if not isinstance(name, str) or not name.isidentifier() or name == "none":
+        raise ValueError(f"name must be an identifier other than 'none', got {name!r}")
+    if not callable(factory):
+        raise ValueError(f"factory must be callable, got {type(factory).__name__}")
+    DENOISERS[name] = factory
+
+
 def names() -> list[str]:
-    """The canonical names, in the paper's order first (NLM, BM3D, sDCT, HypBi, LPA-ICI), then the
-    kornia-based filters."""
-    order = ["nlm", "bm3d", "sdct", "hypbi", "lpa-ici", "bilateral", "joint-bilateral", "guided"]
-    have = _classes()
-    return [n for n in order if n in have]
+    """The canonical names: the built-in denoisers in the paper's order first (NLM, BM3D, sDCT,
+    HypBi, LPA-ICI), then the kornia-based filters, then the registered ones."""
+    return list(DENOISERS)
+
+
+def _check_options(key: str, factory: Callable[..., nn.Module], options: dict) -> None:
+    """The options must be parameters of ``factory`` (unless it takes ``**kwargs`` or has no
+    signature inspect can read)."""
+    try:
+        params = inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        return
+    if any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        return
+    allowed = [p for p in params if p != "self"]
+    bad = sorted(set(options) - set(allowed))
+    if bad:
+        raise ValueError(
+            f"unknown option(s) of denoiser {key!r}: it has no parameter(s) {bad}; "
+            f"allowed: {allowed}"
+        )
 
 
 def get(name: str, **kwargs) -> nn.Module:
-    """A new module for ``name`` built with ``kwargs`` (the class's constructor parameters).
+    """A new module for ``name`` built with ``kwargs`` (the factory's parameters).
 
     Raises:
         ValueError: unknown name (the message lists :func:`names`), or a keyword the denoiser
             does not take (the message lists the ones it does), or a bad value.
     """
     key = _canonical(name)
-    cls = _classes()[key]
-    params = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
-    bad = sorted(set(kwargs) - set(params))
-    if bad:
-        raise ValueError(f"denoiser {key!r} has no parameter(s) {bad}; it takes {params}")
-    return cls(**kwargs)
+    factory = DENOISERS[key]
+    _check_options(key, factory, kwargs)
+    return factory(**kwargs)
 
 
 def canonical(name: str) -> str:
@@ -110,18 +156,26 @@ def canonical(name: str) -> str:
 
 
 def module_class(name: str) -> Callable[..., nn.Module]:
-    """The module class of ``name`` (a factory taking the constructor's keywords)."""
-    return _classes()[_canonical(name)]
+    """The module class (factory) of ``name``, taking the constructor's keywords."""
+    return DENOISERS[_canonical(name)]
 
 
 def describe(name: str) -> str:
     """One line: the canonical name, the class and the first line of its docstring."""
     key = _canonical(name)
-    cls = _classes()[key]
-    doc = (inspect.getdoc(cls) or "").splitlines()
-    return f"{key}: {cls.__name__} - {doc[0] if doc else ''}"
+    factory = DENOISERS[key]
+    doc = (inspect.getdoc(factory) or "").splitlines()
+    return (
+        f"{key}: {getattr(factory, '__name__', type(factory).__name__)} - {doc[0] if doc else ''}"
+    )
 
 
 def scriptable(name: str) -> bool:
-    """Whether ``torch.jit.script`` compiles the module (kornia-based ones are not scriptable)."""
-    return _canonical(name) in _SCRIPTABLE
+    """Whether ``torch.jit.script`` compiles the module (kornia-based ones are not scriptable;
+    registered factories are not known to be)."""
+    key = _canonical(name)
+    return key in _SCRIPTABLE and DENOISERS[key] is _BUILTIN[key]
+
+
+#: the built-in entries, to tell a replaced one from the original
+_BUILTIN: dict[str, Callable[..., nn.Module]] = dict(DENOISERS)

@@ -21,12 +21,21 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ._common import check_k, fill_invalid, noise_map, prepare, restore_invalid
-from ._sigma import hh_kernel
+from ..runtime.noise import hh_kernel
+from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
 from .bm3d_core import _aggregate, _synthesis, _transform, dct_matrix
-from .nlm import _as_sigma
 
-__all__ = ["SlidingDCT", "sliding_dct"]
+__all__ = ["SDCT_BETA", "SDCT_BLOCK_SIZE", "SDCT_LAM", "SDCT_STEP", "SlidingDCT", "sliding_dct"]
+
+# Defaults of sliding_dct and SlidingDCT (written once; see the docstrings)
+#: block side ``block_size``
+SDCT_BLOCK_SIZE: int = 8
+#: grid step of the windows ``step`` (1: every position)
+SDCT_STEP: int = 1
+#: hard threshold ``lam`` in noise standard deviations
+SDCT_LAM: float = 2.7
+#: Kaiser window ``beta`` of the aggregation (0: flat)
+SDCT_BETA: float = 0.0
 
 
 def _check(block_size: int, step: int, lam: float, beta: float) -> None:
@@ -69,10 +78,10 @@ def sliding_dct(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
     sigma: float | torch.Tensor | None = None,
-    block_size: int = 8,
-    step: int = 1,
-    lam: float = 2.7,
-    beta: float = 0.0,
+    block_size: int = SDCT_BLOCK_SIZE,
+    step: int = SDCT_STEP,
+    lam: float = SDCT_LAM,
+    beta: float = SDCT_BETA,
     k: float | None = None,
     signed: bool = False,
 ) -> torch.Tensor:
@@ -126,7 +135,7 @@ def _sliding_dct(
     wavelet: torch.Tensor,
 ) -> torch.Tensor:
     if not torch.jit.is_scripting():
-        sigma = _as_sigma(sigma)
+        sigma = as_sigma(sigma)
     _check(block_size, step, lam, beta)
     x, valid, amp = prepare(depth, amplitude, signed)
     B, C, H, W = x.shape
@@ -164,10 +173,10 @@ class SlidingDCT(nn.Module):
 
     def __init__(
         self,
-        block_size: int = 8,
-        step: int = 1,
-        lam: float = 2.7,
-        beta: float = 0.0,
+        block_size: int = SDCT_BLOCK_SIZE,
+        step: int = SDCT_STEP,
+        lam: float = SDCT_LAM,
+        beta: float = SDCT_BETA,
         k: float | None = None,
         signed: bool = False,
     ) -> None:

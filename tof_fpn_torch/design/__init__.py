@@ -1,4 +1,4 @@
-"""Offline design of the FPN notch filters (NumPy / SciPy / matplotlib; never at run time).
+"""Offline design of the FPN notch filters (NumPy / matplotlib; never at run time).
 
 May import: NumPy, SciPy, matplotlib (:mod:`.plot` only), :mod:`tof_fpn_torch.constants`. Must not
 import torch or any other layer of the package: it produces taps (NumPy arrays) that
@@ -8,7 +8,8 @@ import torch or any other layer of the package: it produces taps (NumPy arrays) 
   :mod:`.linear_phase`: linear-phase filters from it, optionally with an exact DC gain.
 - :mod:`.bands`: notch sets, passbands (eq. 8) and the allowed ``rho``.
 - :mod:`.response`: fixed zeros ``A(z)``, zero-phase response, passband ripple.
-- :mod:`.notch`: :func:`design_fpn` (Sec. III of Georgiev et al., IEEE SAS 2015).
+- :mod:`.notch`: :func:`design_fpn` (Sec. III of Georgiev et al., IEEE SAS 2015): the one way from a
+  specification to taps (``design_fpn(...).taps``; :func:`design_fpn_filter` is an alias of that).
 - :mod:`.delay`: half-sample delay compensation of odd orders.
 - :mod:`.plot`: the magnitude response figure (Fig. 6).
 """

@@ -26,6 +26,7 @@ equality ``H(0) = 1`` in ``tests/test_design.py``.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -105,87 +106,117 @@ def remez_linear_phase(
     if type2 and bands_arr[-1, 1] >= np.pi:
         raise ValueError("an even numtaps (type II) filter is zero at pi; bands must end below pi")
     degree = (numtaps - 2) // 2 if type2 else (numtaps - 1) // 2
-    constrained = fixed_dc is not None
-    if constrained:
+    if fixed_dc is not None:
         if not np.isfinite(fixed_dc):
             raise ValueError(f"fixed_dc must be finite or None, got {fixed_dc!r}")
         if bands_arr[0, 0] != 0.0:
             raise ValueError(f"fixed_dc needs a band starting at 0, got {bands_arr.tolist()}")
         if degree == 0:  # nothing left to optimise: P is the constant itself
-            coeffs = np.array([float(fixed_dc)])
-            taps = cosine_to_taps(coeffs)
-            taps = np.convolve(taps, [0.5, 0.5]) if type2 else taps
-            omega, _ = make_grid(bands_arr, 512)
-            n = np.arange(taps.size) - (taps.size - 1) / 2
-            g = np.cos(np.outer(omega, n)) @ taps
-            err = float(np.max(np.abs(np.asarray(weight(omega)) * (g - desired(omega)))))
-            return taps, RemezResult(coeffs, err, err, 0, omega[:1])
+            return _constant(float(fixed_dc), type2, bands_arr, desired, weight)
+    problem = _CosineProblem(bands_arr, desired, weight, fixed_dc, type2, degree)
+    try:
+        res = problem.exchange(grid_density, maxiter, tol)
+    except RemezConvergenceError as exc:  # any stage: hand the last iterate to the caller
+        if exc.coefficients is not None:
+            exc.taps = problem.to_taps(exc.coefficients)
+        raise
+    return problem.to_taps(res.coefficients), res
 
-    def specs(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        d = np.asarray(desired(omega), dtype=np.float64)
-        w = np.asarray(weight(omega), dtype=np.float64)
-        if type2:
+
+def _constant(
+    dc: float, type2: bool, bands: np.ndarray, desired: FreqFunction, weight: FreqFunction
+) -> tuple[np.ndarray, RemezResult]:
+    """The filter whose ``P`` is the constant ``dc`` (a DC constraint and no free coefficient),
+    with its weighted error on a 512-point grid."""
+    coeffs = np.array([dc])
+    taps = cosine_to_taps(coeffs)
+    taps = np.convolve(taps, [0.5, 0.5]) if type2 else taps
+    omega, _ = make_grid(bands, 512)
+    n = np.arange(taps.size) - (taps.size - 1) / 2
+    g = np.cos(np.outer(omega, n)) @ taps
+    err = float(np.max(np.abs(np.asarray(weight(omega)) * (g - desired(omega)))))
+    return taps, RemezResult(coeffs, err, err, 0, omega[:1])
+
+
+@dataclass
+class _CosineProblem:
+    """The cosine-polynomial problem of :func:`remez_linear_phase` (module docstring): the specs
+    of ``P`` (type II: ``G = cos(w / 2) P``), of ``Q`` under a DC constraint
+    (``P = c + (1 - cos w) Q``), and the taps from the solved coefficients."""
+
+    bands: np.ndarray
+    desired: FreqFunction
+    weight: FreqFunction
+    fixed_dc: float | None
+    type2: bool
+    degree: int
+
+    @property
+    def constrained(self) -> bool:
+        return self.fixed_dc is not None
+
+    @property
+    def free(self) -> int:
+        """Degree of the polynomial the exchange optimises (``Q``'s under a DC constraint)."""
+        return self.degree - 1 if self.constrained else self.degree
+
+    def specs(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = np.asarray(self.desired(omega), dtype=np.float64)
+        w = np.asarray(self.weight(omega), dtype=np.float64)
+        if self.type2:
             c = np.cos(omega / 2)
             d, w = d / c, w * c
-        if constrained:
+        if self.constrained:
             one_minus_x = 1.0 - np.cos(omega)
-            d, w = (d - fixed_dc) / one_minus_x, w * one_minus_x
+            d, w = (d - self.fixed_dc) / one_minus_x, w * one_minus_x
         return d, w
 
-    def grid(num: int) -> tuple[np.ndarray, np.ndarray]:
-        omega, label = make_grid(bands_arr, num)
-        if constrained:
+    def grid(self, num: int) -> tuple[np.ndarray, np.ndarray]:
+        omega, label = make_grid(self.bands, num)
+        if self.constrained:
             keep = omega > _DC_GAP
             omega, label = omega[keep], label[keep]
         return omega, label
 
-    def to_taps(coefficients: np.ndarray) -> np.ndarray:
-        if constrained:  # P(w) = c + (1 - cos w) Q(w), as cosine coefficients of degree M
+    def to_taps(self, coefficients: np.ndarray) -> np.ndarray:
+        if self.constrained:  # P(w) = c + (1 - cos w) Q(w), as cosine coefficients of degree M
             q = coefficients
+            dc = self.fixed_dc
 
             def p_of(w: np.ndarray) -> np.ndarray:
-                return fixed_dc + (1.0 - np.cos(w)) * (np.cos(np.outer(w, np.arange(q.size))) @ q)
+                return dc + (1.0 - np.cos(w)) * (np.cos(np.outer(w, np.arange(q.size))) @ q)
 
-            coefficients = _cosine_coefficients(p_of, degree)
+            coefficients = _cosine_coefficients(p_of, self.degree)
         taps = cosine_to_taps(coefficients)
-        return np.convolve(taps, [0.5, 0.5]) if type2 else taps
+        return np.convolve(taps, [0.5, 0.5]) if self.type2 else taps
 
-    free = degree - 1 if constrained else degree
-
-    def exchange() -> RemezResult:
+    def exchange(self, grid_density: int, maxiter: int, tol: float) -> RemezResult:
+        free = self.free
         # Stage 1: the exchange on a uniform grid of each band.
-        omega, label = grid(grid_density * (free + 1))
-        res = remez_cosine(free, omega, *specs(omega), label, maxiter=maxiter, tol=tol)
+        omega, label = self.grid(grid_density * (free + 1))
+        res = remez_cosine(free, omega, *self.specs(omega), label, maxiter=maxiter, tol=tol)
         # Stages 2 and 3: a 4x denser grid plus a fine local grid (33 points across two of its
         # steps) around every extremal frequency, exchanging again from the converged reference.
         # The dense grid catches lobes the coarse one missed (they crowd near band edges, where W
         # varies fast); the local grids pin the extrema to 1/16 of a step, so the levelled error
         # matches the true maximum to ~1e-4 (checked again by the caller on an independent grid).
-        omega, label = grid(4 * grid_density * (free + 1))
+        omega, label = self.grid(4 * grid_density * (free + 1))
         step = np.diff(omega)[label[1:] == label[:-1]].max(initial=0.0)  # within bands only
         for _ in range(2):
             local = (res.extremal_frequencies[:, None] + np.linspace(-step, step, 33)).ravel()
-            idx = np.searchsorted(bands_arr[:, 0], local, side="right") - 1
-            inside = (idx >= 0) & (local <= bands_arr[np.clip(idx, 0, None), 1])
-            if constrained:
+            idx = np.searchsorted(self.bands[:, 0], local, side="right") - 1
+            inside = (idx >= 0) & (local <= self.bands[np.clip(idx, 0, None), 1])
+            if self.constrained:
                 inside &= local > _DC_GAP
             fine = np.unique(np.concatenate([omega, local[inside]]))
-            fine_label = np.searchsorted(bands_arr[:, 0], fine, side="right") - 1
+            fine_label = np.searchsorted(self.bands[:, 0], fine, side="right") - 1
             res = remez_cosine(
                 free,
                 fine,
-                *specs(fine),
+                *self.specs(fine),
                 fine_label,
                 initial=res.extremal_frequencies,
                 maxiter=maxiter,
                 tol=tol,
             )
         return res
-
-    try:
-        res = exchange()
-    except RemezConvergenceError as exc:  # any stage: hand the last iterate to the caller
-        if exc.coefficients is not None:
-            exc.taps = to_taps(exc.coefficients)
-        raise
-    return to_taps(res.coefficients), res

@@ -1,4 +1,4 @@
-"""Offline design of linear-phase notch FIR filters for FPN suppression (NumPy/SciPy only).
+"""Offline design of linear-phase notch FIR filters for FPN suppression (NumPy only).
 
 Implements Sec. III of M. Georgiev, R. Bregovic and A. Gotchev, "Fixed-pattern noise suppression in
 low-sensing environment of Time-of-Flight devices", IEEE SAS 2015 (DOI 10.1109/SAS.2015.7133633).
@@ -197,6 +197,23 @@ def design_fpn(
         ValueError: an argument is invalid (the message names it, its value and what is allowed).
         RemezConvergenceError: the exchange did not converge (the message suggests a change).
     """
+    order = _check_arguments(order, grid_density, maxiter, unit_dc)
+    w = check_notches(notches)
+    bands = fpn_bands(rho, w)
+    a_taps = fixed_zero_taps(w)
+    n_g = _g_order(order, w, a_taps, bands)
+    bw = _band_weights(band_weights, bands)
+    problem = _Problem(order, rho, w, bands, bw, a_taps, n_g, unit_dc, grid_density, maxiter)
+    found, final = problem.attempt(0)
+    if found is None:
+        found = _highest_verified_order(problem.attempt, n_g // 2)
+    if found is None:
+        raise problem.errors[0]
+    return _finish(problem, *found)
+
+
+def _check_arguments(order, grid_density, maxiter, unit_dc) -> int:
+    """``order`` as an int; ValueError for a bad order, grid density, iteration count or flag."""
     if isinstance(order, bool) or not isinstance(order, (int, np.integer)):
         raise ValueError(f"order must be an integer, got {order!r}")
     order = int(order)
@@ -214,9 +231,12 @@ def design_fpn(
         raise ValueError(f"maxiter must be an integer >= 1, got {maxiter!r}")
     if not isinstance(unit_dc, (bool, np.bool_)):
         raise ValueError(f"unit_dc must be a bool, got {unit_dc!r}")
-    w = check_notches(notches)
-    bands = fpn_bands(rho, w)
-    a_taps = fixed_zero_taps(w)
+    return order
+
+
+def _g_order(order: int, w: np.ndarray, a_taps: np.ndarray, bands: np.ndarray) -> int:
+    """The order ``N_G = N - deg A`` of ``G``; ValueError where ``order`` cannot hold ``A`` or
+    leaves ``G`` a forced zero at pi inside a passband."""
     n_fixed = a_taps.size - 1
     if order < n_fixed:
         raise ValueError(
@@ -229,93 +249,114 @@ def design_fpn(
             f"order={order} leaves G(z) of odd order {n_g}, which forces a zero at pi, but the "
             f"passband reaches pi (last notch {w[-1]:.6g} < pi); use order {order - 1} or {order + 1}"
         )
+    return n_g
+
+
+def _band_weights(band_weights, bands: np.ndarray) -> np.ndarray:
+    """The relative ripple weight of each passband (ones by default); ValueError if bad."""
     if band_weights is None:
-        bw = np.ones(bands.shape[0])
-    else:
-        bw = np.asarray(band_weights, dtype=np.float64).reshape(-1)
-        if bw.size != bands.shape[0] or not np.all(np.isfinite(bw)) or np.any(bw <= 0):
-            raise ValueError(
-                f"band_weights must be {bands.shape[0]} finite positive numbers (one per passband "
-                f"{bands.tolist()}), got {list(band_weights)!r}"
-            )
+        return np.ones(bands.shape[0])
+    bw = np.asarray(band_weights, dtype=np.float64).reshape(-1)
+    if bw.size != bands.shape[0] or not np.all(np.isfinite(bw)) or np.any(bw <= 0):
+        raise ValueError(
+            f"band_weights must be {bands.shape[0]} finite positive numbers (one per passband "
+            f"{bands.tolist()}), got {list(band_weights)!r}"
+        )
+    return bw
 
-    def band_weight(omega: np.ndarray) -> np.ndarray:
-        idx = np.searchsorted(bands[:, 0], omega, side="right") - 1
-        return bw[np.clip(idx, 0, bw.size - 1)]
 
-    def desired(omega: np.ndarray) -> np.ndarray:
-        return 1.0 / fixed_zero_response(omega, w)
+@dataclass
+class _Problem:
+    """The minimax problem of one design (module docstring): weight ``|A| band_weight``, desired
+    response ``1 / A``, and the attempts at it (the errors of the failed ones in ``errors``)."""
 
-    def weight(omega: np.ndarray) -> np.ndarray:
-        return np.abs(fixed_zero_response(omega, w)) * band_weight(omega)
+    order: int
+    rho: float
+    w: np.ndarray
+    bands: np.ndarray
+    bw: np.ndarray
+    a_taps: np.ndarray
+    n_g: int
+    unit_dc: bool
+    grid_density: int
+    maxiter: int
+    errors: list[RemezConvergenceError] = field(default_factory=list)
 
-    errors: list[RemezConvergenceError] = []
-    dc = float(desired(np.zeros(1))[0]) if unit_dc else None  # G(0) = 1 / A(0) <=> H(0) = 1
+    def band_weight(self, omega: np.ndarray) -> np.ndarray:
+        idx = np.searchsorted(self.bands[:, 0], omega, side="right") - 1
+        return self.bw[np.clip(idx, 0, self.bw.size - 1)]
 
-    def attempt(drop: int):
+    def desired(self, omega: np.ndarray) -> np.ndarray:
+        return 1.0 / fixed_zero_response(omega, self.w)
+
+    def weight(self, omega: np.ndarray) -> np.ndarray:
+        return np.abs(fixed_zero_response(omega, self.w)) * self.band_weight(omega)
+
+    def attempt(self, drop: int):
         """Design G of order ``n_g - 2 drop``, zero-padded back to ``n_g``.
 
         Returns ``(found, final)``: ``found`` is ``(taps, result, band_ripples, drop)`` when it
         verifies on the dense grid (and, for ``drop > 0``, lies under the floor); ``final`` says
         that a verified lower-order design already misses the floor, so lower ones will too.
         """
+        # G(0) = 1 / A(0) <=> H(0) = 1
+        dc = float(self.desired(np.zeros(1))[0]) if self.unit_dc else None
         try:
             g_taps, res = remez_linear_phase(
-                n_g + 1 - 2 * drop,
-                bands,
-                desired,
-                weight,
+                self.n_g + 1 - 2 * drop,
+                self.bands,
+                self.desired,
+                self.weight,
                 fixed_dc=dc,
-                grid_density=grid_density,
-                maxiter=maxiter,
+                grid_density=self.grid_density,
+                maxiter=self.maxiter,
             )
             levelled = res.delta
         except RemezConvergenceError as exc:
-            errors.append(exc)
+            self.errors.append(exc)
             if exc.taps is None:
                 return None, False
             # A stalled iterate already under the floor is still a fine filter (checked below).
             g_taps, res, levelled = exc.taps, None, 0.0
-        taps = np.convolve(a_taps, np.pad(g_taps, drop))
-        band_ripples = passband_ripple(taps, bands) / bw  # weighted, as the exchange saw them
+        taps = np.convolve(self.a_taps, np.pad(g_taps, drop))
+        band_ripples = passband_ripple(taps, self.bands) / self.bw  # weighted, as the exchange saw
         ripple = band_ripples.max()
         if ripple <= max(1.005 * levelled, RIPPLE_FLOOR) and (drop == 0 or ripple <= RIPPLE_FLOOR):
             return (taps, res, band_ripples, drop), False
         if res is not None:
-            errors.append(
+            self.errors.append(
                 RemezConvergenceError(
-                    f"order={order}, rho={rho}: the exchange levelled the error at {levelled:.3e} "
-                    f"on its grid but the dense-grid ripple is {ripple:.3e}; use a larger "
-                    "grid_density"
+                    f"order={self.order}, rho={self.rho}: the exchange levelled the error at "
+                    f"{levelled:.3e} on its grid but the dense-grid ripple is {ripple:.3e}; use a "
+                    "larger grid_density"
                 )
             )
         # A trustworthy (levelled = dense) design above the floor: lower orders only do worse.
         return None, drop > 0 and res is not None and ripple <= 1.005 * levelled
 
-    found, final = attempt(0)
-    if found is None:
-        found = _highest_verified_order(attempt, n_g // 2)
-    if found is None:
-        raise errors[0]
-    taps, res, band_ripples, drop = found
+
+def _finish(problem: _Problem, taps, res, band_ripples, drop) -> FPNDesign:
+    """The :class:`FPNDesign` of a verified attempt: taps made exactly symmetric (and of unit sum
+    for ``unit_dc``), the figures of merit."""
+    bw, w = problem.bw, problem.w
     band_ripples = band_ripples * bw
     taps = 0.5 * (taps + taps[::-1])  # exactly symmetric (the convolutions round unevenly)
-    if unit_dc:
+    if problem.unit_dc:
         taps = taps / taps.sum()  # H(0) = 1 to the last bit (it is 1 to ~1e-15 already)
     notch_gains = np.abs(np.exp(-1j * np.outer(w, np.arange(taps.size))) @ taps)
     return FPNDesign(
         taps=taps,
-        order=order,
-        rho=float(rho),
+        order=problem.order,
+        rho=float(problem.rho),
         notches=tuple(float(v) for v in w),
-        bands=bands,
+        bands=problem.bands,
         band_ripples=band_ripples,
         ripple=float(band_ripples.max()),
         notch_gains=notch_gains,
         iterations=res.iterations if res is not None else 0,
-        g_order=n_g - 2 * drop,
+        g_order=problem.n_g - 2 * drop,
         band_weights=tuple(float(v) for v in bw),
-        unit_dc=bool(unit_dc),
+        unit_dc=bool(problem.unit_dc),
     )
 
 
@@ -343,29 +384,17 @@ def _highest_verified_order(attempt, max_drop: int):
     return None
 
 
-def design_fpn_filter(
-    order: int,
-    rho: float,
-    *,
-    notches: Sequence[float] = DEFAULT_NOTCHES,
-    band_weights: Sequence[float] | None = None,
-    unit_dc: bool = True,
-    grid_density: int = 8,
-    maxiter: int = 100,
-) -> np.ndarray:
-    """Taps ``h[0..order]`` (float64) of the FPN notch filter; see :func:`design_fpn`.
+def design_fpn_filter(order: int, rho: float, **kwargs) -> np.ndarray:
+    """Alias of ``design_fpn(order, rho, **kwargs).taps``, kept for the public API.
+
+    :func:`design_fpn` is the one way from a specification to taps: its :class:`FPNDesign` holds
+    them (``.taps``) with the figures of merit. The run-time modules get theirs from
+    :func:`tof_fpn_torch.build.filter_from_design`, which calls :func:`design_fpn` (and, for odd
+    orders, compensates the half-sample delay).
 
     Example:
         >>> h = design_fpn_filter(20, 0.14)
         >>> h.shape
         (21,)
     """
-    return design_fpn(
-        order,
-        rho,
-        notches=notches,
-        band_weights=band_weights,
-        unit_dc=unit_dc,
-        grid_density=grid_density,
-        maxiter=maxiter,
-    ).taps
+    return design_fpn(order, rho, **kwargs).taps

@@ -183,34 +183,15 @@ def remez_cosine(
     weight = np.asarray(weight, dtype=np.float64)
     band = np.zeros(omega.shape, dtype=np.int64) if band is None else np.asarray(band)
     n_ref = degree + 2
-    if omega.size < n_ref or np.unique(omega).size != omega.size:
-        raise ValueError(
-            f"grid has {omega.size} points (must be distinct); degree {degree} needs >= {n_ref}"
-        )
-    if not (np.all(np.isfinite(desired)) and np.all(np.isfinite(weight)) and np.all(weight > 0)):
-        raise ValueError("desired must be finite and weight finite and > 0 on the whole grid")
-
+    _check_grid(omega, desired, weight, n_ref, degree)
     x_grid = np.cos(omega)
-    if initial is not None and np.size(initial) == n_ref:
-        ref = np.unique(np.abs(omega[None, :] - np.asarray(initial)[:, None]).argmin(axis=1))
-    if initial is None or np.size(initial) != n_ref or ref.size != n_ref:
-        ref = _initial_reference(omega, band, n_ref)
+    ref = _start_reference(omega, band, initial, n_ref)
     alt = (-1.0) ** np.arange(n_ref)
     delta = 0.0
     max_err = np.inf
     error: RemezConvergenceError | None = None
     for it in range(1, maxiter + 1):
-        x = x_grid[ref]
-        b = _barycentric_weights(x)
-        d_ref, w_ref = desired[ref], weight[ref]
-        delta = float(np.dot(b, d_ref) / np.dot(b, alt / w_ref))
-        # P interpolates C_k = D_k - (-1)^k delta / W_k at every reference point; any M+1 of them
-        # determine it. Leave out an interior one: extrapolating to an end point (e.g. a narrow
-        # band far from the others) amplifies rounding errors enormously.
-        sub = np.arange(n_ref) != n_ref // 2
-        xi = x[sub]
-        ci = (d_ref - alt * delta / w_ref)[sub]
-        bi = _barycentric_weights(xi)
+        delta, xi, ci, bi = _levelled(x_grid[ref], desired[ref], weight[ref], alt)
         p = _barycentric_eval(x_grid, xi, ci, bi)
         err = weight * (p - desired)
         max_err = float(np.max(np.abs(err)))
@@ -239,6 +220,46 @@ def remez_cosine(
         error.coefficients = coeffs
         raise error
     return RemezResult(coeffs, abs(delta), max_err, it, omega[ref])
+
+
+def _check_grid(
+    omega: np.ndarray, desired: np.ndarray, weight: np.ndarray, n_ref: int, degree: int
+) -> None:
+    if omega.size < n_ref or np.unique(omega).size != omega.size:
+        raise ValueError(
+            f"grid has {omega.size} points (must be distinct); degree {degree} needs >= {n_ref}"
+        )
+    if not (np.all(np.isfinite(desired)) and np.all(np.isfinite(weight)) and np.all(weight > 0)):
+        raise ValueError("desired must be finite and weight finite and > 0 on the whole grid")
+
+
+def _start_reference(
+    omega: np.ndarray, band: np.ndarray, initial: np.ndarray | None, n_ref: int
+) -> np.ndarray:
+    """The starting reference: ``initial`` snapped to the grid when it gives ``n_ref`` distinct
+    points, else :func:`_initial_reference`."""
+    if initial is not None and np.size(initial) == n_ref:
+        ref = np.unique(np.abs(omega[None, :] - np.asarray(initial)[:, None]).argmin(axis=1))
+        if ref.size == n_ref:
+            return ref
+    return _initial_reference(omega, band, n_ref)
+
+
+def _levelled(
+    x: np.ndarray, d_ref: np.ndarray, w_ref: np.ndarray, alt: np.ndarray
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """``(delta, xi, ci, bi)``: the levelled error of the reference ``x = cos(omega_ref)`` and the
+    barycentric interpolant of ``P`` (nodes ``xi``, values ``ci``, weights ``bi``)."""
+    n_ref = x.size
+    b = _barycentric_weights(x)
+    delta = float(np.dot(b, d_ref) / np.dot(b, alt / w_ref))
+    # P interpolates C_k = D_k - (-1)^k delta / W_k at every reference point; any M+1 of them
+    # determine it. Leave out an interior one: extrapolating to an end point (e.g. a narrow
+    # band far from the others) amplifies rounding errors enormously.
+    sub = np.arange(n_ref) != n_ref // 2
+    xi = x[sub]
+    ci = (d_ref - alt * delta / w_ref)[sub]
+    return delta, xi, ci, _barycentric_weights(xi)
 
 
 def _initial_reference(omega: np.ndarray, band: np.ndarray, n_ref: int) -> np.ndarray:

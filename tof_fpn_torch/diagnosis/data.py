@@ -129,26 +129,9 @@ def _meta_number(meta: dict, key: str, lo: float, hi: float, what: str):
     return float(v)
 
 
-def observe(recording: Recording, scene=None) -> Observations:
-    """Check ``recording`` (and ``scene``) and compute what the diagnosis needs.
-
-    Raises ``ValueError`` naming the problem: not a recording, frames without a valid pixel,
-    meta out of range, a scene of another size or with no known pixel.
-    """
-    if not isinstance(recording, Recording):
-        raise ValueError(f"recording must be a tof_fpn_torch.io.Recording, got {type(recording)}")
-    depth = recording.depth[:, 0].to(torch.float64)
-    amp = recording.amplitude[:, 0].to(torch.float64)
-    t, h, w = depth.shape
-    if h < 8 or w < 8:
-        raise ValueError(f"recording frames are {h}x{w}; the diagnosis needs at least 8x8 pixels")
-    valid = torch.isfinite(depth) & (depth > 0) & torch.isfinite(amp) & (amp >= 0)
-    empty = [i for i in range(t) if not bool(valid[i].any())]
-    if len(empty) == t:
-        raise ValueError(f"recording has no valid pixel in any of its {t} frame(s)")
-    if empty:
-        raise ValueError(f"recording frames {empty} have no valid pixel (depth NaN everywhere)")
-    meta = recording.meta
+def _settings(meta: dict) -> tuple:
+    """``(modulation frequency or None, phases, integration time in s, notes)`` from the
+    recording's meta (assumptions made are noted; a value out of range raises)."""
     notes = []
     f = _meta_number(meta, "modulation_frequency_hz", 1e5, 1e10, "expected 0.1 MHz .. 10 GHz")
     if isinstance(f, list):
@@ -174,6 +157,29 @@ def observe(recording: Recording, scene=None) -> Observations:
         )
     ti = _meta_number(meta, "integration_time_us", 1e-3, 1e6, "expected 1 ns .. 1 s")
     ti = 1e-3 if ti is None else ti * 1e-6
+    return f, n_ph, ti, notes
+
+
+def observe(recording: Recording, scene=None) -> Observations:
+    """Check ``recording`` (and ``scene``) and compute what the diagnosis needs.
+
+    Raises ``ValueError`` naming the problem: not a recording, frames without a valid pixel,
+    meta out of range, a scene of another size or with no known pixel.
+    """
+    if not isinstance(recording, Recording):
+        raise ValueError(f"recording must be a tof_fpn_torch.io.Recording, got {type(recording)}")
+    depth = recording.depth[:, 0].to(torch.float64)
+    amp = recording.amplitude[:, 0].to(torch.float64)
+    t, h, w = depth.shape
+    if h < 8 or w < 8:
+        raise ValueError(f"recording frames are {h}x{w}; the diagnosis needs at least 8x8 pixels")
+    valid = torch.isfinite(depth) & (depth > 0) & torch.isfinite(amp) & (amp >= 0)
+    empty = [i for i in range(t) if not bool(valid[i].any())]
+    if len(empty) == t:
+        raise ValueError(f"recording has no valid pixel in any of its {t} frame(s)")
+    if empty:
+        raise ValueError(f"recording frames {empty} have no valid pixel (depth NaN everywhere)")
+    f, n_ph, ti, notes = _settings(recording.meta)
     ts = recording.timestamps_s
     times = ts.to(torch.float64) - ts[0] if ts is not None else torch.arange(t, dtype=torch.float64)
     if ts is None and t > 1:
@@ -206,7 +212,7 @@ def observe(recording: Recording, scene=None) -> Observations:
         times=times,
         q_depth=q_d,
         q_amp=q_a,
-        amplitude_unit=str(meta.get("amplitude_unit", "camera units")),
+        amplitude_unit=str(recording.meta.get("amplitude_unit", "camera units")),
         notes=notes,
     )
     if scene is None:

@@ -12,7 +12,10 @@ from .. import constants as K
 from ..plotting import pyplot
 from .model import predict
 
-__all__ = ["figures"]
+__all__ = ["FIGURE_DPI", "figures"]
+
+#: Resolution of the diagnosis figures.
+FIGURE_DPI: int = 110
 
 _LABEL = {
     "depth_mean": ("depth residual of the temporal mean", "mm", 1e3),
@@ -26,7 +29,7 @@ _LABEL = {
 
 def _png(fig) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=K.DIAG_FIGURE_DPI, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=FIGURE_DPI, bbox_inches="tight")
     pyplot().close(fig)
     return buf.getvalue()
 

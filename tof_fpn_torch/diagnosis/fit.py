@@ -1,15 +1,9 @@
 """Maximum-likelihood fitting of a :class:`~tof_fpn_torch.diagnosis.model.DiagnosisModel`.
 
 The scalar parameters are fitted with L-BFGS (torch autograd through the simulator chain, the
-noise law and the likelihood; frames pooled, the objective is the NLL per observation). The
-column / row delay profiles of ``fpn_pattern`` are fitted in closed form, alternating with
-L-BFGS: for a column ``c`` the weighted mean ``m_c`` of the depth residuals (weights
-``1 / var`` of the temporal means, residuals winsorised at 5 sigma) has variance
-``sigma_c^2 + 1 / W_c`` around zero; ``sigma_c^2`` is estimated by moments and every column gets
-its best linear unbiased prediction ``m_c sigma_c^2 / (sigma_c^2 + 1 / W_c)`` (the empirical
-Bayes shrinkage of a random effect about zero), so that a column whose mean is noise is pulled to
-zero; the profile keeps its mean (a delay common to all columns is a delay of the clock tree). The
-shrinkage factors sum to the effective number of parameters counted by the AIC.
+noise law and the likelihood; frames pooled, the objective is the NLL per observation). Terms
+estimated in closed form (``Term.closed_form``: the column / row delay profiles of
+``fpn_pattern``) are updated between L-BFGS rounds (``Term.update_closed_form``).
 """
 
 from __future__ import annotations
@@ -21,21 +15,29 @@ import torch
 from .. import constants as K
 from .data import Observations
 from .likelihood import Context, n_observations, nll
-from .model import DiagnosisModel, Prediction, predict
+from .model import DiagnosisModel, predict
 from .params import from_u, to_u
 
-__all__ = ["evaluate", "fit", "init_model", "update_profiles"]
+__all__ = [
+    "FIT_ITERS",
+    "FIT_ROUNDS",
+    "FIT_TOL",
+    "INLIER_Z",
+    "evaluate",
+    "fit",
+    "init_model",
+    "robust_start",
+]
 
-#: parameters in e- (they scale with the conversion gain while it is fitted)
-_ELECTRONS = (
-    "photons.responsivity",
-    "camera.read_noise",
-    "readout_fpn.cos_2pi3",
-    "readout_fpn.sin_2pi3",
-    "readout_fpn.cos_pi",
-    "saturation.level",
-    "amplitude_bias.reference",
-)
+#: Iterations of L-BFGS per fit.
+FIT_ITERS: int = 40
+#: A fit stops when a further round (fresh Hessian, L-BFGS) gains less than this many nats, or
+#: after ``FIT_ROUNDS`` rounds.
+FIT_TOL: float = 0.5
+FIT_ROUNDS: int = 4
+#: Pixels whose temporal mean or spread is within this many sigma of a grossly misfitting model
+#: give the robust starting values that every candidate term is also tried from.
+INLIER_Z: float = 4.0
 
 
 def init_model(obs: Observations, scene) -> DiagnosisModel:
@@ -79,59 +81,13 @@ def init_model(obs: Observations, scene) -> DiagnosisModel:
     return model
 
 
-def update_profiles(
-    model: DiagnosisModel, obs: Observations, ctx: Context, pred: Prediction, sel: str = "all"
-) -> DiagnosisModel:
-    """Closed-form (empirical Bayes) column and row delay profiles from the depth residuals."""
-    h, w = obs.shape
-    m = ctx.mask_d & ctx.select(sel)
-    old_c = model.profiles.get("columns", torch.zeros(w, dtype=torch.float64))
-    old_r = model.profiles.get("rows", torch.zeros(h, dtype=torch.float64))
-    with torch.no_grad():
-        var = pred.sd_d.detach() ** 2 / obs.n.clamp_min(1)
-        r = obs.m_d - pred.mu_d.detach() + old_c.view(1, w) + old_r.view(h, 1)
-        if pred.wrap is not None:
-            r = r - pred.wrap * torch.round(r / pred.wrap)
-        lim = 5.0 * torch.sqrt(var)
-        r = torch.maximum(torch.minimum(r, lim), -lim)
-        wt = torch.where(m, 1.0 / var, torch.zeros_like(var))
-        col = torch.zeros(w, dtype=torch.float64)
-        row = torch.zeros(h, dtype=torch.float64)
-        dof = 0.0
-        rms = {}
-        for _ in range(2):
-            for axis, name in ((0, "columns"), (1, "rows")):
-                other = row.view(h, 1) if axis == 0 else col.view(1, w)
-                res = (r - other) * wt
-                big_w = wt.sum(axis)
-                has = big_w > 0
-                mean = torch.where(has, res.sum(axis) / big_w.clamp_min(1e-300), 0.0)
-                noise = torch.where(has, 1.0 / big_w.clamp_min(1e-300), 0.0)
-                s2 = max(float(((mean**2 - noise)[has]).mean()), 0.0) if bool(has.any()) else 0.0
-                shrink = torch.where(has, s2 / (s2 + noise), 0.0)
-                prof = mean * shrink
-                if axis == 0:
-                    col = prof
-                else:
-                    row = prof
-                rms[name] = math.sqrt(s2)
-                if _ == 1:
-                    dof += float(shrink.sum()) + 1.0
-    out = model.copy()
-    out.profiles = {"columns": col, "rows": row}
-    out.values["fpn_pattern.dof"] = dof
-    out.values["fpn_pattern.rms_columns"] = rms["columns"]
-    out.values["fpn_pattern.rms_rows"] = rms["rows"]
-    return out
-
-
 def fit(
     model: DiagnosisModel,
     obs: Observations,
     ctx: Context,
     sel: str = "all",
     free: list | None = None,
-    iters: int = K.DIAG_FIT_ITERS,
+    iters: int = FIT_ITERS,
     rounds: int = 2,
 ) -> tuple[DiagnosisModel, float]:
     """Fit ``model`` to the ``sel`` pixels (``all``, ``train``); ``free``: the keys to fit
@@ -139,18 +95,20 @@ def fit(
     model = model.copy()
     specs = [s for s in model.specs() if free is None or s.key in free]
     n_obs = max(n_observations(obs, ctx, sel), 1.0)
-    profile = "fpn_pattern" in model.effects
-    for _ in range(rounds if profile else 1):
-        if profile:
-            with torch.no_grad():
-                model = update_profiles(model, obs, ctx, predict(model, obs, scene=ctx.scene), sel)
+    closed = [t for t in model.terms() if t.closed_form]
+    for _ in range(rounds if closed else 1):
+        with torch.no_grad():
+            for t in closed:
+                model = t.update_closed_form(
+                    model, obs, ctx, predict(model, obs, scene=ctx.scene), sel
+                )
         if not specs:
             break
         # Newton-like rounds (fresh Hessian each) until the NLL moves by less than the tolerance
         last, tmat = math.inf, None
-        for _ in range(K.DIAG_FIT_ROUNDS):
+        for _ in range(FIT_ROUNDS):
             model, val, tmat = _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat)
-            if last - val < K.DIAG_FIT_TOL:
+            if last - val < FIT_TOL:
                 break
             last = val
     with torch.no_grad():
@@ -165,6 +123,7 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
     amplitude vs conversion gain) converge in a few iterations. Returns the model, its NLL and
     the whitening matrix (passed back in, a second round reuses it)."""
     keys = [s.key for s in specs]
+    charges = [s.key for s in specs if s.charge]
     u0 = torch.tensor([to_u(s, model.values[s.key]) for s in specs], dtype=torch.float64)
     g0 = model.values["camera.conversion_gain"]
 
@@ -175,9 +134,8 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
         v.update({s.key: from_u(s, u[i]) for i, s in enumerate(specs)})
         if "camera.conversion_gain" in keys:
             ratio = v["camera.conversion_gain"] / g0
-            for key in _ELECTRONS:
-                if key in keys:
-                    v[key] = v[key] * ratio
+            for key in charges:
+                v[key] = v[key] * ratio
         return v
 
     def objective(u):
@@ -188,35 +146,64 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
             return None
         return out if bool(torch.isfinite(out)) else None
 
-    def grad(u):
-        u = u.detach().requires_grad_(True)
-        out = objective(u)
-        if out is None:
-            return None, None
-        (g,) = torch.autograd.grad(out, u)
-        return out.detach(), g
-
-    n = len(keys)
     if tmat is None:
-        f0, gr0 = grad(u0)
+        f0, tmat = _whitening(objective, u0)
         if f0 is None:
             return model, math.inf, None
-        hess = torch.zeros(n, n, dtype=torch.float64)
-        step = 1e-4
-        for i in range(n):
-            _, gi = grad(u0 + step * torch.eye(n, dtype=torch.float64)[i])
-            ok = gi is not None and bool(torch.isfinite(gi).all())
-            hess[i] = (gi - gr0) / step if ok else 0.0
-        hess = 0.5 * (hess + hess.T)
-        lam, vec = torch.linalg.eigh(hess)
-        top = float(lam.abs().max()) if n else 1.0
-        lam = lam.abs().clamp_min(max(top, 1e-30) * 1e-8)
-        tmat = vec / torch.sqrt(lam).view(1, n)
     else:
         with torch.no_grad():
             f0 = objective(u0)
         if f0 is None:
             return model, math.inf, tmat
+    w = _lbfgs(objective, u0, tmat, iters)
+    with torch.no_grad():
+        u = u0 + tmat @ w
+        final = objective(u)
+        if final is None or float(final) > float(f0):
+            return model, float(f0) * n_obs, tmat
+        v = values(u)
+    out = model.copy()
+    for k in keys:
+        val = float(v[k])
+        if math.isfinite(val):
+            out.values[k] = val
+    return out, float(final) * n_obs, tmat
+
+
+def _gradient(objective, u: torch.Tensor):
+    """``(objective(u), its gradient)``; ``(None, None)`` where the objective is undefined."""
+    u = u.detach().requires_grad_(True)
+    out = objective(u)
+    if out is None:
+        return None, None
+    (g,) = torch.autograd.grad(out, u)
+    return out.detach(), g
+
+
+def _whitening(objective, u0: torch.Tensor):
+    """``(objective(u0), T)``: ``T`` maps a unit step to one standard error of every parameter
+    combination (``V diag(1 / sqrt(|lambda|))`` of the finite-difference Hessian);
+    ``(None, None)`` where the objective is undefined at ``u0``."""
+    n = u0.numel()
+    f0, gr0 = _gradient(objective, u0)
+    if f0 is None:
+        return None, None
+    hess = torch.zeros(n, n, dtype=torch.float64)
+    step = 1e-4
+    for i in range(n):
+        _, gi = _gradient(objective, u0 + step * torch.eye(n, dtype=torch.float64)[i])
+        ok = gi is not None and bool(torch.isfinite(gi).all())
+        hess[i] = (gi - gr0) / step if ok else 0.0
+    hess = 0.5 * (hess + hess.T)
+    lam, vec = torch.linalg.eigh(hess)
+    top = float(lam.abs().max()) if n else 1.0
+    lam = lam.abs().clamp_min(max(top, 1e-30) * 1e-8)
+    return f0, vec / torch.sqrt(lam).view(1, n)
+
+
+def _lbfgs(objective, u0: torch.Tensor, tmat: torch.Tensor, iters: int) -> torch.Tensor:
+    """The whitened step ``w`` (``u = u0 + T w``) that L-BFGS finds from ``w = 0``."""
+    n = u0.numel()
     w = torch.zeros(n, dtype=torch.float64, requires_grad=True)
     opt = torch.optim.LBFGS(
         [w],
@@ -242,24 +229,13 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
         opt.step(closure)
     except RuntimeError:
         pass
-    with torch.no_grad():
-        u = u0 + tmat @ w.detach()
-        final = objective(u)
-        if final is None or float(final) > float(f0):
-            return model, float(f0) * n_obs, tmat
-        v = values(u)
-    out = model.copy()
-    for k in keys:
-        val = float(v[k])
-        if math.isfinite(val):
-            out.values[k] = val
-    return out, float(final) * n_obs, tmat
+    return w.detach()
 
 
 def robust_start(model: DiagnosisModel, obs: Observations, ctx: Context, base: DiagnosisModel):
     """Starting values of the core parameters that a gross misfit cannot drag away: the model is
     refitted (from ``model``'s robust starting values) on the pixels whose temporal mean and
-    spread are within ``DIAG_INLIER_Z`` sigma of the fitted ``base``, twice. ``None`` when fewer
+    spread are within ``INLIER_Z`` sigma of the fitted ``base``, twice. ``None`` when fewer
     than 1 % of the depth pixels are outside (nothing to protect from)."""
     from dataclasses import replace as _replace
 
@@ -270,7 +246,7 @@ def robust_start(model: DiagnosisModel, obs: Observations, ctx: Context, base: D
             ch = channels(obs, predict(m, obs, scene=ctx.scene), ctx)
         ok = torch.ones_like(ctx.mask_d)
         for z, _, mask in ch.values():
-            ok &= ~mask | (z.abs() < K.DIAG_INLIER_Z)
+            ok &= ~mask | (z.abs() < INLIER_Z)
         return ok
 
     ok = inliers(base)

@@ -7,9 +7,10 @@ pixel ``p`` is computed exactly from its ``(n, m, M2)``::
     + 0.5 log n,          v_m = sigma^2 / n + tau^2
 
 (``tau``: a random effect fixed over time, e.g. the pixel gain on the amplitude). Depth and
-amplitude count as independent (their noises are orthogonal components of ``X_1``). Effects that
-act per frame change the statistics: ``temporal_drift`` subtracts its per-frame delay (and scales
-the amplitude) before they are taken; ``impulsive_pixels`` turns every frame-pixel into a mixture
+amplitude count as independent (their noises are orthogonal components of ``X_1``). Terms that
+act per frame change the statistics: a per-frame change of the means (``Term.frame_means``,
+``temporal_drift``) is subtracted before they are taken; an outlier rate ``r``
+(``Term.outlier_rate``, ``impulsive_pixels``) turns every frame-pixel into a mixture
 ``(1 - r) N_D N_A + r U_D U_A`` with uniform densities over the observed depth and amplitude
 ranges, evaluated on the frames themselves.
 """
@@ -21,10 +22,29 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .. import constants as K
 from .data import Observations, pixel_stats
 
-__all__ = ["Context", "make_context", "nll", "n_observations"]
+__all__ = [
+    "EDGE_MARGIN",
+    "MIN_SNR_AMPLITUDE",
+    "MIN_SNR_DEPTH",
+    "SPLIT_BLOCK",
+    "Context",
+    "make_context",
+    "n_observations",
+    "nll",
+]
+
+#: Pixels enter the depth likelihood where the predicted amplitude is at least this many times
+#: the noise of one component of (2/N) X_1 (below it the phase is far from Gaussian) ...
+MIN_SNR_DEPTH: float = 5.0
+#: ... and the amplitude likelihood above this (the Rician mean and spread are used).
+MIN_SNR_AMPLITUDE: float = 2.0
+#: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels.
+SPLIT_BLOCK: int = 8
+#: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
+#: out of the likelihood (the smoothing cannot follow the edge there).
+EDGE_MARGIN: int = 2
 
 _LOG2PI = math.log(2 * math.pi)
 
@@ -67,11 +87,11 @@ def make_context(obs: Observations, snr: torch.Tensor) -> Context:
     if obs.scene_estimated:  # the estimate is poor within a few px of a depth edge
         from .axes import edge_distance
 
-        base &= edge_distance(obs.scene_depth, obs.known) > K.DIAG_EDGE_MARGIN
-    mask_d = base & (snr >= K.DIAG_MIN_SNR_DEPTH)
-    mask_a = base & (snr >= K.DIAG_MIN_SNR_AMPLITUDE)
+        base &= edge_distance(obs.scene_depth, obs.known) > EDGE_MARGIN
+    mask_d = base & (snr >= MIN_SNR_DEPTH)
+    mask_a = base & (snr >= MIN_SNR_AMPLITUDE)
     h, w = obs.shape
-    b = K.DIAG_SPLIT_BLOCK
+    b = SPLIT_BLOCK
     yy = torch.arange(h).view(h, 1) // b
     xx = torch.arange(w).view(1, w) // b
     train = ((yy + xx) % 2) == 0
@@ -98,11 +118,6 @@ def _gauss_ss(n, m, m2, mu, sd, tau, wrap):
     return out.sum()
 
 
-def _drift_curve(model, obs, v):
-    tau = v["temporal_drift.time_constant"]
-    return 1.0 - torch.exp(-obs.times / tau)
-
-
 def _pick(x, idx):
     if isinstance(x, torch.Tensor) and x.dim() == 2:
         return x.reshape(-1)[idx]
@@ -111,38 +126,49 @@ def _pick(x, idx):
 
 def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all") -> torch.Tensor:
     """Frame-level NLL (nats) of the selected pixels of both channels."""
-    drift = "temporal_drift" in model.effects
-    mixture = "impulsive_pixels" in model.effects
-    s = ctx.select(sel)
-    if not drift and not mixture:
-        md, ma = ctx.mask_d & s, ctx.mask_a & s
-        out = _gauss_ss(
-            obs.n[md], obs.m_d[md], obs.m2_d[md], pred.mu_d[md], pred.sd_d[md], 0.0, pred.wrap
-        )
-        tau = pred.tau_a[ma] if isinstance(pred.tau_a, torch.Tensor) else pred.tau_a
-        return out + _gauss_ss(
-            obs.n[ma], obs.m_a[ma], obs.m2_a[ma], pred.mu_a[ma], pred.sd_a[ma], tau, None
-        )
+    terms = model.terms()
+    per_frame = [x for x in (t.frame_means(v, obs) for t in terms) if x is not None]
+    rate = next((r for r in (t.outlier_rate(v) for t in terms) if r is not None), None)
+    if not per_frame and rate is None:
+        return _nll_pooled(obs, ctx, pred, sel)
     xd, vd, idd = ctx.frames(obs, sel, "d")
     xa, va, ida = ctx.frames(obs, sel, "a")
-    t = obs.frames
-    u = _drift_curve(model, obs, v).view(t, 1) if drift else None
     mu_d, sd_d = _pick(pred.mu_d, idd).view(1, -1), _pick(pred.sd_d, idd).view(1, -1)
     mu_a, sd_a = _pick(pred.mu_a, ida).view(1, -1), _pick(pred.sd_a, ida).view(1, -1)
     tau = _pick(pred.tau_a, ida)
     tau = tau.view(1, -1) if isinstance(tau, torch.Tensor) else tau
-    if drift:
-        mu_d = mu_d + u * v["temporal_drift.depth_step"]
-        mu_a = mu_a * (1.0 + u * v["temporal_drift.amplitude_step"])
-    if not mixture:
-        yd = xd - (mu_d - mu_d[:1]) if drift else xd
-        ya = xa - (mu_a - mu_a[:1]) if drift else xa
+    for shift, factor in per_frame:
+        mu_d = mu_d + shift
+        mu_a = mu_a * factor
+    if rate is None:
+        yd = xd - (mu_d - mu_d[:1]) if per_frame else xd
+        ya = xa - (mu_a - mu_a[:1]) if per_frame else xa
         n, m, m2 = pixel_stats(yd, vd)
         out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], 0.0, pred.wrap)
         n, m, m2 = pixel_stats(ya, va)
         tau0 = tau[0] if isinstance(tau, torch.Tensor) else tau
         return out + _gauss_ss(n, m, m2, mu_a[0], sd_a[0], tau0, None)
-    rate = v["impulsive_pixels.rate"]
+    return _nll_mixture(ctx, pred, rate, (xd, vd, idd, mu_d, sd_d), (xa, va, ida, mu_a, sd_a), tau)
+
+
+def _nll_pooled(obs: Observations, ctx: Context, pred, sel: str) -> torch.Tensor:
+    """The NLL from each pixel's ``(n, m, M2)`` (no term acts per frame)."""
+    s = ctx.select(sel)
+    md, ma = ctx.mask_d & s, ctx.mask_a & s
+    out = _gauss_ss(
+        obs.n[md], obs.m_d[md], obs.m2_d[md], pred.mu_d[md], pred.sd_d[md], 0.0, pred.wrap
+    )
+    tau = pred.tau_a[ma] if isinstance(pred.tau_a, torch.Tensor) else pred.tau_a
+    return out + _gauss_ss(
+        obs.n[ma], obs.m_a[ma], obs.m2_a[ma], pred.mu_a[ma], pred.sd_a[ma], tau, None
+    )
+
+
+def _nll_mixture(ctx: Context, pred, rate, depth: tuple, amp: tuple, tau) -> torch.Tensor:
+    """The NLL of every frame-pixel under the mixture with outlier rate ``rate``; ``depth`` and
+    ``amp``: frames, validity, pixel index, per-frame mean and sd of each channel."""
+    xd, vd, idd, mu_d, sd_d = depth
+    xa, va, ida, mu_a, sd_a = amp
     rd = xd - mu_d
     if pred.wrap is not None:
         rd = rd - pred.wrap * torch.round(rd / pred.wrap)

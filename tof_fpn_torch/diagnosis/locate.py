@@ -29,7 +29,14 @@ from .axes import Axis, axes
 from .data import Observations, fold, pixel_stats
 from .threads import map_threads
 
-__all__ = ["Stat", "bootstrap", "locate", "statistics"]
+__all__ = ["ALPHA", "MIN_NULL_SCALE", "TAIL_Z", "Stat", "bootstrap", "locate", "statistics"]
+
+#: Family-wise false-alarm probability of the located statistics (Bonferroni over all of them).
+ALPHA: float = 0.01
+#: Smallest null scale (bootstrap mean / df) a chi^2 statistic may get.
+MIN_NULL_SCALE: float = 0.25
+#: A frame-pixel further than this many sigma from the model is a tail event.
+TAIL_Z: float = 5.0
 
 
 @dataclass
@@ -55,7 +62,7 @@ class Stat:
     def scale(self) -> float:
         if self.kind != "chi2" or not self.null:
             return 1.0
-        return max(sum(self.null) / len(self.null) / max(self.df, 1e-9), K.DIAG_MIN_NULL_SCALE)
+        return max(sum(self.null) / len(self.null) / max(self.df, 1e-9), MIN_NULL_SCALE)
 
     def band(self, q: float = 0.95) -> tuple[float, float]:
         """The null's central ``q`` interval of ``S`` (scaled chi^2 or Poisson)."""
@@ -171,7 +178,7 @@ def statistics(obs: Observations, pred, ctx) -> dict[str, Stat]:
         if pred.wrap is not None:
             r = r - pred.wrap * torch.round(r / pred.wrap)
         v = obs.valid & ctx.mask_d
-        big = (v & ((r / pred.sd_d).abs() > K.DIAG_TAIL_Z)).sum()
+        big = (v & ((r / pred.sd_d).abs() > TAIL_Z)).sum()
         out["depth_tail|pixels"] = Stat("depth_tail|pixels", float(big), 1, kind="count")
         clear = ctx.mask_d.unsqueeze(0).expand_as(obs.valid)
         out["invalid|pixels"] = Stat(
@@ -245,7 +252,7 @@ def bootstrap(model, obs: Observations, ctx, stats: dict[str, Stat], replicates:
                 s.null.append(sb[k].value)
 
 
-def locate(stats: dict[str, Stat], alpha: float = K.DIAG_ALPHA) -> list[Stat]:
+def locate(stats: dict[str, Stat], alpha: float = ALPHA) -> list[Stat]:
     """p-values of every statistic; the significant ones, most significant first."""
     j = max(len(stats), 1)
     for s in stats.values():

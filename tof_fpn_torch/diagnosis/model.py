@@ -9,16 +9,15 @@ three signed amplitudes of ``p`` and ``psi`` fitted). No saturation, no wrapping
 
 Prediction for every pixel: the deterministic terms run on the scene (no noise), the samples are
 divided by ``g`` (DN) and decoded by eq. (1): ``A_0``, ``B`` and the depth, which is unwrapped
-around the scene depth unless ``phase_wrapping`` is in the model. The noise of one sample is
-``v = B / g + (sigma_read / g)^2 + 1/12`` DN^2, so each component of ``X_1 (2/N)`` has standard
-deviation ``s = sqrt(2 v / N)``: the amplitude is Rician (mean and spread from ``A_0`` and ``s``),
-the depth Gaussian with ``sigma_D = (c_L / 4 pi f) s / A_0`` (eq. 2), plus the jitter of
-``noise_floor`` and the quantisation of the stored values (``q^2 / 12``).
+around the scene depth unless a term folds it (``phase_wrapping``). The noise law
+(:mod:`~tof_fpn_torch.diagnosis.noise`) gives the Rician amplitude and the Gaussian depth spread,
+to which the terms add theirs (the jitter of ``noise_floor``) and the quantisation of the stored
+values adds ``q^2 / 12``. The catalogue terms enter through the hooks of
+:class:`~tof_fpn_torch.diagnosis.terms.base.Term`, never by name.
 """
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, field, replace
 
@@ -37,23 +36,29 @@ from ..sim import (
     Simulation,
     depth_from_samples,
 )
-from .catalogue import CATALOGUE, build_term
+from .catalogue import CATALOGUE
+from .noise import decode_flat_safe, noise_law
 from .params import ParamSpec
+from .terms.base import Chain, Term
 
-__all__ = ["CORE_SPECS", "DiagnosisModel", "Prediction", "peak_samples", "predict"]
+__all__ = ["CORE_SPECS", "WRAP_BOUNDARY_SD", "DiagnosisModel", "Prediction", "predict"]
 
 #: always fitted
 CORE_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("photons.responsivity", "log", 1.0),
+    ParamSpec("photons.responsivity", "log", 1.0, charge=True),
     ParamSpec("camera.conversion_gain", "log", 1.0, "e-/DN"),
-    ParamSpec("camera.read_noise", "rootabs", 1.0, "e-"),
+    ParamSpec("camera.read_noise", "rootabs", 1.0, "e-", charge=True),
     ParamSpec("camera.ambient_irradiance", "abs", 0.1, "W/m^2"),
-    ParamSpec("readout_fpn.cos_2pi3", "lin", 1.0, "e-"),
-    ParamSpec("readout_fpn.sin_2pi3", "lin", 1.0, "e-"),
-    ParamSpec("readout_fpn.cos_pi", "lin", 1.0, "e-"),
+    ParamSpec("readout_fpn.cos_2pi3", "lin", 1.0, "e-", charge=True),
+    ParamSpec("readout_fpn.sin_2pi3", "lin", 1.0, "e-", charge=True),
+    ParamSpec("readout_fpn.cos_pi", "lin", 1.0, "e-", charge=True),
     ParamSpec("readout_fpn.sample_phase", "lin", 1.0, "rad"),
 )
-_TERM_OF = {n: (e.term or n) for n, e in CATALOGUE.items()}
+#: A pixel that the model moves to within this many depth sd of the wrap boundary (0 / R), its
+#: scene depth not that close, is predicted on the side where its readings are (same phase).
+WRAP_BOUNDARY_SD: float = 4.0
+#: the baseline's read-out FPN in the mean chain (not a catalogue term)
+_BASELINE_FPN = "_readout_fpn"
 
 
 @dataclass
@@ -80,6 +85,19 @@ class DiagnosisModel:
             self.fpn_scale,
         )
 
+    def terms(self) -> list[Term]:
+        """The catalogue terms in the model, in the order they were added."""
+        return [CATALOGUE[e] for e in self.effects]
+
+    def wrap_range(self, v: dict | None = None):
+        """The range (m) a term of the model folds the depth into (None: no folding)."""
+        v = self.values if v is None else v
+        for t in self.terms():
+            r = t.wrap_range(v)
+            if r is not None:
+                return r
+        return None
+
     def specs(self) -> list[ParamSpec]:
         """Every fitted scalar of the model (core + its effects)."""
         out = []
@@ -89,14 +107,15 @@ class DiagnosisModel:
             elif s.key == "camera.read_noise":
                 s = replace(s, scale=self.fpn_scale**2)
             out.append(s)
-        for e in self.effects:
-            out.extend(CATALOGUE[e].specs)
+        for t in self.terms():
+            out.extend(t.specs)
         return out
 
     def n_parameters(self) -> float:
-        """Number of fitted parameters (closed-form profiles count their effective degrees of
-        freedom, stored in ``values["fpn_pattern.dof"]``)."""
-        return len(self.specs()) + float(self.values.get("fpn_pattern.dof", 0.0))
+        """Number of fitted parameters (closed-form estimates count their effective degrees of
+        freedom, ``Term.effective_parameters``)."""
+        extra = sum((t.effective_parameters(self.values) for t in self.terms()), 0.0)
+        return len(self.specs()) + extra
 
     def with_effect(self, name: str, init: dict) -> DiagnosisModel:
         m = self.copy()
@@ -111,8 +130,8 @@ class DiagnosisModel:
         if name in m.effects:
             m.effects.remove(name)
         m.values = {k: v for k, v in m.values.items() if not k.startswith(name + ".")}
-        if name == "fpn_pattern":
-            m.profiles = {}
+        for k in CATALOGUE[name].profile_keys:
+            m.profiles.pop(k, None)
         return m
 
     def readout_fpn(self) -> ReadoutFPN:
@@ -133,8 +152,9 @@ class DiagnosisModel:
 
     def simulation_camera(self) -> Camera:
         f = float(self.camera.modulation_frequency)
-        if "phase_wrapping" in self.effects:
-            f = K.SPEED_OF_LIGHT_AIR / (2.0 * self.values["phase_wrapping.range"])
+        wrap = self.wrap_range()
+        if wrap is not None:
+            f = K.SPEED_OF_LIGHT_AIR / (2.0 * wrap)
         return replace(
             self.camera,
             full_well=1e30,  # the model has no saturation unless `saturation` is in it
@@ -150,8 +170,8 @@ class DiagnosisModel:
         v = self.values
         terms = [Photons(responsivity=v["photons.responsivity"]), ShotNoise(), self.readout_fpn()]
         terms += [ReadNoise(), ADC(quantize=True)]
-        for e in self.effects:
-            t = build_term(e, v, self, for_chain=False)
+        for term in self.terms():
+            t = term.simulator_term(v, self)
             if t is not None:
                 terms.append(t)
         terms.sort(key=lambda t: STAGE.get(t.name, 50))
@@ -176,15 +196,6 @@ class Prediction:
     wrap: object = None
 
 
-def _rician(a0: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and sd of ``|a0 + s (xi_1 + j xi_2)|``."""
-    x = a0 * a0 / (4.0 * s * s)
-    lag = (1 + 2 * x) * torch.special.i0e(x) + 2 * x * torch.special.i1e(x)
-    mean = s * math.sqrt(math.pi / 2) * lag
-    var = (a0 * a0 + 2 * s * s - mean * mean).clamp_min(1e-3 * s * s)
-    return mean, torch.sqrt(var)
-
-
 def _baseline_fpn(samples: torch.Tensor, v: dict) -> torch.Tensor:
     n, w = samples.shape[1], samples.shape[3]
     x = torch.arange(w, dtype=torch.float64)
@@ -201,37 +212,12 @@ def _baseline_fpn(samples: torch.Tensor, v: dict) -> torch.Tensor:
 
 
 _PHOTONS_CACHE: dict = {}
-_RELAY_CACHE: dict = {}
 
 
-def _multipath(t, state, units, key, amb_irr, resp):
-    """``t.apply(state)`` when ``state.samples`` are still the photons' ``(act + amb_irr amb)
-    resp``: the scene relay is linear in the samples, so the relays of the two cached unit
-    images are computed once per scene and geometry and scaled (the (sources x pixels) products
-    and their backward pass ran in every prediction: a third of a diagnosis with multipath)."""
-    if isinstance(t.scene_relay, (int, float)) and t.scene_relay == 0:
-        return t.apply(state)
-    rkey = (key, float(t.field_of_view), float(t.near_field), int(t.relay_step))
-    rel = _RELAY_CACHE.get(rkey)
-    if rel is None:
-        with torch.no_grad():
-            rel = (t.relayed(units[0], state), t.relayed(units[1], state))
-        if len(_RELAY_CACHE) >= K.DIAG_RELAY_CACHE_SIZE:
-            _RELAY_CACHE.clear()
-        _RELAY_CACHE[rkey] = rel
-    state = replace(t, scene_relay=0.0).apply(state)  # the uniform relay from outside the view
-    state.samples = state.samples + t.scene_relay * resp * (rel[0] + rel[1] * amb_irr)
-    return state
-
-
-def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Prediction:
-    """Model predictions for ``obs`` with values ``v`` (default ``model.values``; tensors keep
-    the graph). ``scene``: a cached :class:`~tof_fpn_torch.sim.Scene` (default ``obs.scene()``)."""
-    v = model.values if v is None else v
-    scene = obs.scene() if scene is None else scene
-    cam = model.camera
-    # the photo-charge is linear in the responsivity and in the ambient irradiance: the
-    # unit-responsivity active and ambient samples are cached
+def _photon_units(cam: Camera, scene) -> tuple[tuple, tuple]:
+    """The unit-responsivity active and ambient samples of ``scene`` and their cache key: the
+    photo-charge is linear in the responsivity and in the ambient irradiance, so they are
+    computed once per scene and camera."""
     key = (id(scene), float(cam.modulation_frequency), cam.n_phases, float(cam.integration_time))
     units = _PHOTONS_CACHE.get(key)
     if units is None:
@@ -243,137 +229,103 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
                 replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene
             )
         _PHOTONS_CACHE.clear()
-        _RELAY_CACHE.clear()
         _PHOTONS_CACHE[key] = units = (act, amb)
+    return units, key
+
+
+def _mean_chain(model: DiagnosisModel, v: dict, state: SimState, chain: Chain) -> SimState:
+    """The noise-free samples after every term of the model and the baseline's read-out FPN, in
+    the simulator's stage order (``Term.apply_mean``; terms that do not enter the chain pass)."""
+    steps = [(STAGE.get(t.sim_name or t.name, 50), t.name) for t in model.terms()]
+    steps.append((STAGE["readout_fpn"], _BASELINE_FPN))
+    for _, name in sorted(steps):
+        if name == _BASELINE_FPN:
+            state.samples = _baseline_fpn(state.samples, v)
+        else:
+            state = CATALOGUE[name].apply_mean(state, v, model, chain)
+    return state
+
+
+def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Prediction:
+    """Model predictions for ``obs`` with values ``v`` (default ``model.values``; tensors keep
+    the graph). ``scene``: a cached :class:`~tof_fpn_torch.sim.Scene` (default ``obs.scene()``)."""
+    v = model.values if v is None else v
+    scene = obs.scene() if scene is None else scene
+    cam = model.camera
+    units, key = _photon_units(cam, scene)
     amb_irr = v.get("camera.ambient_irradiance", cam.ambient_irradiance)
     samples = (units[0] + units[1] * amb_irr) * v["photons.responsivity"]
-    state = SimState(cam, scene, samples, None)
-    sample_var = None  # per-sample noise variance (e-^2) when the clip has changed it
-    chain = [(STAGE.get(_TERM_OF[e], 50), e) for e in model.effects]
-    chain.append((STAGE["readout_fpn"], "_readout_fpn"))
-    for _, e in sorted(chain):
-        if e == "_readout_fpn":
-            state.samples = _baseline_fpn(state.samples, v)
-            continue
-        t = build_term(e, v, model, for_chain=True)
-        if e == "saturation":
-            # the camera clips its noisy samples: the clip of the shot and read noise of each
-            # sample, averaged (its mean bends over ~1 sd; the clipped part has no noise)
-            var_e = state.samples.clamp_min(0) + v["camera.read_noise"] ** 2
-            state.samples, sample_var = t.noisy_moments(state.samples, var_e)
-        elif e == "multipath" and state.samples is samples:
-            state = _multipath(t, state, units, key, amb_irr, v["photons.responsivity"])
-        elif t is not None:
-            state = t.apply(state)
+    chain = Chain(samples, units, key, amb_irr, v["photons.responsivity"])
+    state = _mean_chain(model, v, SimState(cam, scene, samples, None), chain)
     g = v["camera.conversion_gain"]
     dn = state.samples / g
-    if sample_var is None:
-        depth, a0, offset = depth_from_samples(dn, float(cam.modulation_frequency))
+    f = float(cam.modulation_frequency)
+    if chain.sample_var is None:
+        depth, a0, offset = depth_from_samples(dn, f)
     else:  # fully clipped pixels have equal samples: decoded without a 0 / 0 in the gradient
-        depth, a0, offset = _decode_flat_safe(dn, float(cam.modulation_frequency))
+        depth, a0, offset = decode_flat_safe(dn, f)
     f64 = torch.float64
     depth, a0, offset = depth[0, 0].to(f64), a0[0, 0].to(f64), offset[0, 0].to(f64)
-    d_true = obs.scene_depth
-    r_cam = K.SPEED_OF_LIGHT_AIR / (2.0 * float(cam.modulation_frequency))
-    # the reading is the decoded depth in [0, R); where it is close to the scene depth it is
-    # taken continuously across 0 / R (no wrapping in the baseline), where it is far (a mixture of
-    # surfaces, a gross error) as decoded
-    dev = depth - d_true
-    dev = dev - r_cam * torch.round(dev / r_cam)
-    mu_d = torch.where(dev.abs() < 0.25 * r_cam, d_true + dev, depth)
-    wrap = None
-    if "phase_wrapping" in model.effects:
-        wrap = v["phase_wrapping.range"]
+    r_cam = K.SPEED_OF_LIGHT_AIR / (2.0 * f)
+    mu_d = _reading(depth, obs.scene_depth, r_cam)
+    wrap = model.wrap_range(v)
+    if wrap is not None:
         mu_d = torch.remainder(mu_d, wrap)
     a0 = a0.clamp_min(1e-9)
-    k_d = K.SPEED_OF_LIGHT_AIR / (4 * math.pi * float(cam.modulation_frequency))
-    if sample_var is None:
-        var = offset.clamp_min(0) / g + (v["camera.read_noise"] / g) ** 2 + 1.0 / 12.0
-        s = torch.sqrt(2.0 * var / cam.n_phases)
-        mu_a, sd_a = _rician(a0, s)
-        var_d = (k_d * s / a0) ** 2
-    else:
-        s_perp, s_par = _clipped_noise(dn, sample_var / g**2 + 1.0 / 12.0)
-        s = torch.sqrt(0.5 * (s_perp**2 + s_par**2))
-        mu_a, sd_a = _rician(a0, s)
-        sd_a = sd_a * s_par / s
-        var_d = (k_d * s_perp / a0) ** 2
-    var_d = var_d + obs.q_depth**2 / 12.0
-    if "noise_floor" in model.effects:
-        var_d = var_d + v["noise_floor.sigma"] ** 2
-    if "saturation" in model.effects:
-        # a pixel whose samples are all clipped has no phase: its depth is anywhere in [0, R),
-        # so its spread is at most that of a uniform over the range
-        var_d = torch.minimum(var_d, var_d.new_tensor(r_cam**2 / 12.0))
+    mu_a, sd_a, var_d, s = noise_law(cam, v, dn, a0, offset, chain.sample_var)
+    var_d = _terms_depth_variance(model, v, var_d + obs.q_depth**2 / 12.0, r_cam)
     if wrap is None:
-        # a reading that the model itself moves to within a few sd of the wrap boundary (a clip
-        # that pins the phase to a sample's direction reads exactly there) decodes as often near
-        # 0 as near R: such a pixel is predicted on the side where its readings are. Not where
-        # the scene itself is near the boundary: there a reading near 0 instead of near R is
-        # what phase wrapping looks like
-        lim = K.DIAG_WRAP_BOUNDARY_SD * var_d.sqrt()
-        near = (dev_to_boundary(mu_d, r_cam) < lim) & (dev_to_boundary(d_true, r_cam) >= lim)
-        near &= obs.known
-        alt = mu_d + r_cam * torch.round((obs.m_d - mu_d) / r_cam)
-        mu_d = torch.where(near, alt, mu_d)
+        mu_d = _boundary_side(mu_d, var_d, obs, r_cam)
     sd_a = torch.sqrt(sd_a**2 + obs.q_amp**2 / 12.0)
-    tau = v["pixel_gain.rms"] * mu_a if "pixel_gain" in model.effects else 0.0
+    tau = _amplitude_tau(model, v, mu_a)
     return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap)
 
 
-def _phasor(dn: torch.Tensor):
-    """``Re X_1``, ``Im X_1`` (1, 1, H, W; float64), the DFT weights (exact zeros), and where
-    the samples are flat (X_1 = 0)."""
-    n = dn.shape[1]
-    th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
-    c, sn = torch.cos(th), torch.sin(th)
-    c, sn = [torch.where(x.abs() < 1e-12, torch.zeros_like(x), x).view(1, n, 1, 1) for x in (c, sn)]
-    d = dn.to(torch.float64)
-    re, im = (d * c).sum(1, keepdim=True), -(d * sn).sum(1, keepdim=True)
-    return re, im, c, sn, (re == 0) & (im == 0)
+def _reading(depth: torch.Tensor, d_true: torch.Tensor, r_cam: float) -> torch.Tensor:
+    """The reading is the decoded depth in [0, R); where it is close to the scene depth it is
+    taken continuously across 0 / R (no wrapping in the baseline), where it is far (a mixture of
+    surfaces, a gross error) as decoded."""
+    dev = depth - d_true
+    dev = dev - r_cam * torch.round(dev / r_cam)
+    return torch.where(dev.abs() < 0.25 * r_cam, d_true + dev, depth)
 
 
-def _decode_flat_safe(dn: torch.Tensor, f: float):
-    """Eq. (1) like :func:`~tof_fpn_torch.sim.depth_from_samples` (depth, amplitude, offset),
-    with a finite gradient where the samples are all equal (amplitude 0, depth 0)."""
-    re, im, _, _, flat = _phasor(dn)
-    re_s = torch.where(flat, torch.ones_like(re), re)  # the 0 / 0 branch never differentiated
-    phase = torch.remainder(torch.atan2(im, re_s), 2 * math.pi)
-    amp = torch.where(flat, torch.zeros_like(re), torch.hypot(re_s, im) * (2.0 / dn.shape[1]))
-    depth = phase * (K.SPEED_OF_LIGHT_AIR / (4 * math.pi * f))
-    return depth, amp, dn.to(torch.float64).mean(1, keepdim=True)
+def _terms_depth_variance(model: DiagnosisModel, v: dict, var_d, r_cam: float):
+    """The depth variance with what the terms add (``Term.depth_variance``), then capped by
+    their limits (``Term.depth_variance_limit``)."""
+    terms = model.terms()
+    for t in terms:
+        add = t.depth_variance(v)
+        if add is not None:
+            var_d = var_d + add
+    for t in terms:
+        lim = t.depth_variance_limit(r_cam)
+        if lim is not None:
+            var_d = torch.minimum(var_d, var_d.new_tensor(lim))
+    return var_d
 
 
-def _clipped_noise(dn: torch.Tensor, var: torch.Tensor):
-    """Noise of ``(2/N) X_1`` across and along the phasor (each (H, W), DN) for samples ``dn``
-    (1, N, H, W) with unequal variances ``var`` (DN^2): the delta method through eq. (1). Equal
-    variances ``v`` give ``sqrt(2 v / N)`` for both; a flat pixel (no phasor) gets the mean."""
-    n = dn.shape[1]
-    re, im, c, sn, flat = _phasor(dn)
-    var = var.to(torch.float64)
-    mag = torch.sqrt(torch.where(flat, torch.ones_like(re), re * re + im * im))
-    # d phase / d R_n = -(Re sin + Im cos) / |X|^2, d |X| / d R_n = (Re cos - Im sin) / |X|
-    perp = (var * ((re * sn + im * c) / mag) ** 2).sum(1)[0]
-    par = (var * ((re * c - im * sn) / mag) ** 2).sum(1)[0]
-    iso = 0.5 * var.sum(1)[0]
-    perp, par = torch.where(flat[0, 0], iso, perp), torch.where(flat[0, 0], iso, par)
-    return torch.sqrt(perp) * (2.0 / n), torch.sqrt(par) * (2.0 / n)
+def _boundary_side(mu_d, var_d, obs, r_cam: float):
+    """A reading that the model itself moves to within a few sd of the wrap boundary (a clip
+    that pins the phase to a sample's direction reads exactly there) decodes as often near 0 as
+    near R: such a pixel is predicted on the side where its readings are. Not where the scene
+    itself is near the boundary: there a reading near 0 instead of near R is what phase wrapping
+    looks like."""
+    lim = WRAP_BOUNDARY_SD * var_d.sqrt()
+    near = (dev_to_boundary(mu_d, r_cam) < lim) & (dev_to_boundary(obs.scene_depth, r_cam) >= lim)
+    near &= obs.known
+    alt = mu_d + r_cam * torch.round((obs.m_d - mu_d) / r_cam)
+    return torch.where(near, alt, mu_d)
+
+
+def _amplitude_tau(model: DiagnosisModel, v: dict, mu_a):
+    """Sd of the random effects on the amplitude means (``Term.amplitude_sd``; 0.0: none)."""
+    sds = [x for x in (t.amplitude_sd(v, mu_a) for t in model.terms()) if x is not None]
+    if not sds:
+        return 0.0
+    return sds[0] if len(sds) == 1 else torch.sqrt(sum(x * x for x in sds))
 
 
 def dev_to_boundary(depth: torch.Tensor, r_cam: float) -> torch.Tensor:
     """Distance (m) of ``depth`` to the nearest multiple of the unambiguous range ``r_cam``."""
     return (depth - r_cam * torch.round(depth / r_cam)).abs()
-
-
-def peak_samples(model: DiagnosisModel, p, depth: torch.Tensor, amp: torch.Tensor):
-    """The largest of the N raw samples (DN) of pixels with ``depth`` (m) and amplitude ``amp``
-    (DN) on the predicted offset: ``offset + A max_n cos(phi + 2 pi n / N)``."""
-    n = model.camera.n_phases
-    phi = depth * (4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR)
-    th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
-    cmax = torch.cos(phi.unsqueeze(-1) + th).amax(-1)
-    return p.offset + amp * cmax
-
-
-def copy_values(v: dict) -> dict:
-    return copy.deepcopy(v)

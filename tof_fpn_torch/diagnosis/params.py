@@ -1,11 +1,14 @@
 """Fitted parameters: physical values and the unconstrained variables the optimiser moves.
 
-Every parameter has a key (``"photons.responsivity"``, ``"cyclic_error.cos3"``), a kind and a
+Every parameter has a key (``"photons.responsivity"``, ``"cyclic_error.cos1"``), a kind and a
 scale: ``lin`` (value = u * scale, any sign), ``log`` (value = scale * e^u, > 0), ``logit``
-(value = scale / (1 + e^-u), in (0, scale)) ``abs`` (value = scale |u|, >= 0, linear near zero) or ``rootabs`` (value = sqrt(scale |u|), >= 0: a
-standard deviation whose variance is linear in ``u``, so that the optimiser does not stall on the
-plateau a logarithm or a softplus has near zero). The model stores physical values; the fit works on
-``u`` so that one step of the optimiser is about one scale.
+(value = scale / (1 + e^-u), in (0, scale)), ``abs`` (value = scale |u|, >= 0, linear near zero)
+or ``rootabs`` (value = sqrt(scale |u|), >= 0: a standard deviation whose variance is linear in
+``u``, so that the optimiser does not stall on the plateau a logarithm or a softplus has near
+zero). The model stores physical values; the fit works on ``u`` so that one step of the optimiser
+is about one scale. A parameter that is a charge (e-) is marked ``charge``: while the conversion
+gain is fitted it moves with it, so that its value in DN stays put (decorrelated variables,
+:func:`~tof_fpn_torch.diagnosis.fit.fit`).
 """
 
 from __future__ import annotations
@@ -15,17 +18,25 @@ from dataclasses import dataclass
 
 import torch
 
-__all__ = ["ParamSpec", "from_u", "to_u"]
+__all__ = ["SCALE_CYCLIC", "SCALE_DEPTH", "ParamSpec", "from_u", "to_u"]
+
+#: Scale of the depth-like parameters (m): the optimiser moves them in mm steps ...
+SCALE_DEPTH: float = 1e-3
+#: ... and the correlation harmonics (and other small relative sizes) in 1 % steps.
+SCALE_CYCLIC: float = 0.01
 
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One fitted scalar: ``key``, ``kind`` (``lin``/``log``/``logit``), ``scale``, ``unit``."""
+    """One fitted scalar: ``key`` (``"owner.field"``), ``kind`` (``lin``, ``log``, ``logit``,
+    ``abs``, ``rootabs``), ``scale``, ``unit`` (for readers) and ``charge`` (a charge in e-: it
+    moves with the conversion gain while that is fitted)."""
 
     key: str
     kind: str = "lin"
     scale: float = 1.0
     unit: str = ""
+    charge: bool = False
 
 
 def to_u(spec: ParamSpec, value: float) -> float:

@@ -1,7 +1,7 @@
 """The file layer: the only part of the package that reads or writes file formats.
 
-May import: torch, NumPy, imageio, tifffile, h5py, PyAV (``av``, optional, at call time), the
-standard library, :mod:`tof_fpn_torch.runtime` (the validity rule), :mod:`tof_fpn_torch.constants`
+May import: torch, NumPy, imageio, tifffile, h5py, PyAV (``av``, optional, at call time),
+rosbags (optional, at call time), the standard library, :mod:`tof_fpn_torch.runtime` (the validity rule), :mod:`tof_fpn_torch.constants`
 and :mod:`tof_fpn_torch.cameras` (profile names). It sits beside the simulator and never imports it:
 simulator results are converted by attribute (:func:`recording_from_simulation`,
 :func:`scene_from_sim`). ``tests/test_layout.py`` checks this.
@@ -15,13 +15,18 @@ formats, their units and what each reader can and cannot do.
 - :mod:`.numpy_files` -- ``.npy`` / ``.npz``; :mod:`.images` -- 16-bit PNG, TIFF;
   :mod:`.hdf5` -- HDF5; :mod:`.raw` -- raw uint16 LE frames; :mod:`.pairs` -- by suffix.
 - :mod:`.captures` -- ADI ADTF3175 (depth + IR, interleaved), Kinect v2 P0 tables;
-  :mod:`.matroska` -- Azure Kinect ``.mkv`` (PyAV).
+  :mod:`.matroska` -- Azure Kinect ``.mkv`` (PyAV); :mod:`.rosbag` -- ROS 1 / ROS 2 bags,
+  RealSense recordings (rosbags); :mod:`.camera_files` -- camera files by name (containers,
+  ADI vendor names) for the folder tools.
 - :mod:`.recording` -- the recording format (:class:`Recording`); :mod:`.scene` -- the scene
   format (:class:`SceneData`).
 - :mod:`.dataset` -- :class:`FrameDataset`, a folder of frames for a ``DataLoader``.
+- :mod:`.patterns` -- the pattern files of ``tof-fpn calibrate`` (:func:`read_pattern_file`,
+  :func:`write_pattern_file`; plain tensors, the analysis layer's patterns convert).
 """
 
 from ._common import METRES_PER_MM, FormatError
+from .camera_files import read_any_recording, read_camera_file
 from .captures import (
     read_adi_depth_ir,
     read_adi_interleaved,
@@ -35,6 +40,7 @@ from .images import read_png, read_tiff, write_png, write_tiff
 from .matroska import read_azure_kinect_mkv
 from .numpy_files import read_npy, read_npz, write_npy, write_npz
 from .pairs import read_pair, write_pair
+from .patterns import read_pattern_file, write_pattern_file
 from .raw import read_raw, write_raw
 from .recording import (
     FORMAT_VERSION,
@@ -44,6 +50,7 @@ from .recording import (
     recording_from_simulation,
     write_recording,
 )
+from .rosbag import read_realsense_bag, read_ros_bag
 from .scene import SceneData, read_scene, scene_from_sim, write_scene
 
 __all__ = [
@@ -57,15 +64,20 @@ __all__ = [
     "find_frames",
     "read_adi_depth_ir",
     "read_adi_interleaved",
+    "read_any_recording",
     "read_azure_kinect_mkv",
+    "read_camera_file",
     "read_hdf5",
     "read_kinect_v2_p0",
     "read_npy",
     "read_npz",
     "read_pair",
+    "read_pattern_file",
     "read_png",
     "read_raw",
+    "read_realsense_bag",
     "read_recording",
+    "read_ros_bag",
     "read_scene",
     "read_tiff",
     "recording_from_simulation",
@@ -76,6 +88,7 @@ __all__ = [
     "write_npy",
     "write_npz",
     "write_pair",
+    "write_pattern_file",
     "write_png",
     "write_raw",
     "write_recording",

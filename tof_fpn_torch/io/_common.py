@@ -159,6 +159,16 @@ def as_frames(x, name: str) -> np.ndarray:
     return x
 
 
+def check_depth_bits(arr: np.ndarray, where, depth_scale) -> None:
+    """Refuse 8-bit integer depth unless its metres per unit are given: 0-255 mm is not a depth
+    map (it is a preview or a mask exported as an image)."""
+    if arr.dtype.kind in "ui" and arr.dtype.itemsize == 1 and depth_scale is None:
+        raise FormatError(
+            f"{where}: 8-bit depth holds 0-255 units, not a depth map (depth files are 16-bit "
+            "mm); if it really is depth, give its metres per unit (depth_scale, --depth-scale)"
+        )
+
+
 def depth_from_stored(arr: np.ndarray, depth_scale: float | None = None) -> torch.Tensor:
     """Stored depth (T, H, W) -> float32 (T, 1, H, W) metres, NaN wherever the pixel is invalid.
 
@@ -256,5 +266,5 @@ def check_not_empty(
         raise ValueError(
             f"{where}: frame(s) {empty[:10]}{' ...' if len(empty) > 10 else ''} of "
             f"{depth.shape[0]} have no valid pixel (depth finite and > 0, amplitude finite and "
-            ">= 0); pass allow_empty=True to accept them"
+            ">= 0)"
         )

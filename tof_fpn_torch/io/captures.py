@@ -33,6 +33,7 @@ from ._common import (
 from .raw import RAW_DTYPE, read_raw, read_raw_array
 
 __all__ = [
+    "ADI_INTERLEAVED_DTYPE",
     "ADI_SHAPE",
     "KINECT_V2_P0_SHAPE",
     "P0_UNITS_PER_TURN",
@@ -51,6 +52,8 @@ KINECT_V2_P0_SHAPE: tuple[int, int, int] = (3, 424, 512)
 P0_UNITS_PER_TURN: int = 1 << 16
 #: the interleaved pixel: depth uint16 LE (mm), confidence uint8, active brightness uint16 LE
 _INTERLEAVED = np.dtype([("depth", "<u2"), ("confidence", "u1"), ("ab", "<u2")])
+#: the interleaved pixel as a NumPy structured dtype (fields ``depth``, ``confidence``, ``ab``)
+ADI_INTERLEAVED_DTYPE: np.dtype = _INTERLEAVED
 
 
 def read_adi_depth_ir(

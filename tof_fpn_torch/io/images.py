@@ -30,6 +30,7 @@ from ._common import (
     amplitude_from_stored,
     amplitude_to_stored,
     as_frames,
+    check_depth_bits,
     check_kind,
     check_not_empty,
     decoding,
@@ -82,6 +83,8 @@ def read_png(
             f"{p}: expected a single-channel integer (16-bit grey) PNG, got shape {arr.shape} "
             f"dtype {arr.dtype}"
         )
+    if kind == "depth":
+        check_depth_bits(arr, p, depth_scale)
     return _to_tensor(arr, kind, str(p), depth_scale, allow_empty)
 
 

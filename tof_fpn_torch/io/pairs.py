@@ -52,7 +52,10 @@ def _read_single(path, kind, height, width, depth_scale) -> torch.Tensor:
     opts = dict(depth_scale=depth_scale, allow_empty=True) if kind == "depth" else {}
     if s in _RAW:
         if height is None or width is None:
-            raise ValueError(f"raw file {path}: pass height and width (pixels)")
+            raise ValueError(
+                f"raw file {path}: its frame size is not in the file; give height and width "
+                "(pixels; tof-fpn: --height / --width)"
+            )
         return read_raw(path, height, width, kind, **opts)
     reader = {".npy": read_npy, ".png": read_png, ".tif": read_tiff, ".tiff": read_tiff}[s]
     return reader(path, kind, **opts)

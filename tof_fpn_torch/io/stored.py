@@ -21,13 +21,15 @@ raw ``.bin``       little-endian uint16, frames back to back
 A file holds one or more :class:`FrameSet`: one for every format but HDF5, where every group
 holding a ``depth`` and an ``amplitude`` dataset (the root included) is one, keyed by its path.
 :func:`frame_set_tensors` turns a set into the package's tensors (depth metres, NaN invalid;
-amplitude camera units) and :func:`encode_depth` turns cleaned depth (metres) back into the stored
+amplitude camera units) and :func:`~.encode.encode_depth` turns cleaned depth (metres) back into the stored
 dtype, leaving the stored value of every invalid input pixel as it was. Decoding errors raise
-:class:`FormatError` naming the file.
+:class:`FormatError` naming the file. Camera files (an Azure Kinect ``.mkv``, ROS bags, ADI
+vendor-named raw files) are read and written through :mod:`.camera_files`.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 import zipfile
 from dataclasses import dataclass
@@ -42,6 +44,7 @@ from PIL import Image, PngImagePlugin
 from ._common import (
     FormatError,
     amplitude_from_stored,
+    check_depth_bits,
     check_not_empty,
     check_same_shape,
     check_scale,
@@ -53,7 +56,13 @@ from ._common import (
 from .numpy_files import load_npz
 from .raw import RAW_DTYPE, read_raw_array
 
-__all__ = ["FrameSet", "encode_depth", "frame_set_tensors", "read_frame_sets", "write_like"]
+__all__ = [
+    "PNG_SCALE_KEY",
+    "FrameSet",
+    "frame_set_tensors",
+    "read_frame_sets",
+    "write_like",
+]
 
 _HDF5 = (".h5", ".hdf5")
 
@@ -68,6 +77,10 @@ class FrameSet:
         amplitude: (T, H, W) stored amplitude, the file's dtype (camera units).
         depth_scale: metres per stored depth unit.
         shape: the stored shape of the depth, (H, W) or (T, H, W), written back as it was.
+        camera: the camera profile (:mod:`tof_fpn_torch.cameras`) the file comes from, where
+            its format or name tells (``azure_kinect``, ``realsense``, ``adtf3175``, a
+            recording's ``meta["camera"]``), else None.
+        meta, timestamps_s: a recording container's meta and (T,) timestamps, else None.
     """
 
     key: str
@@ -75,6 +88,9 @@ class FrameSet:
     amplitude: np.ndarray
     depth_scale: float
     shape: tuple[int, ...]
+    camera: str | None = None
+    meta: dict | None = None
+    timestamps_s: np.ndarray | None = None
 
 
 def _scale(arr: np.ndarray, depth_scale) -> float:
@@ -83,17 +99,37 @@ def _scale(arr: np.ndarray, depth_scale) -> float:
     return 1e-3 if arr.dtype.kind in "ui" else 1.0  # io._common: mm for integer, m for floating
 
 
-def _png(path: Path) -> np.ndarray:
+def _recording_camera(arrays: dict) -> str | None:
+    """``meta["camera"]`` of a recording ``.npz`` (:mod:`.recording`), else None."""
+    try:
+        meta = json.loads(str(arrays["meta"].item())) if "content" in arrays else None
+    except (KeyError, ValueError):
+        return None
+    camera = meta.get("camera") if isinstance(meta, dict) else None
+    return camera if isinstance(camera, str) else None
+
+
+#: the PNG text chunk that records the depth's metres per stored unit (when not 1 mm)
+PNG_SCALE_KEY = "depth_scale_m"
+
+
+def _png(path: Path) -> tuple[np.ndarray, float | None]:
+    """The image and the ``depth_scale_m`` text chunk's value (None where absent)."""
     with decoding(path, "a PNG image"), Image.open(path) as im:
         if im.format != "PNG":
             raise TypeError(f"a {im.format} image, not a PNG")
         arr = np.asarray(im)
+        text = im.info.get(PNG_SCALE_KEY)
     if arr.ndim != 2 or arr.dtype.kind not in "ui":
         raise FormatError(
             f"{path}: expected a single-channel integer (16-bit grey) PNG, got shape {arr.shape} "
             f"dtype {arr.dtype}"
         )
-    return arr
+    try:
+        scale = None if text is None else check_scale(float(text), PNG_SCALE_KEY)
+    except ValueError as exc:
+        raise FormatError(f"{path}: text chunk {PNG_SCALE_KEY}={text!r}: {exc}") from None
+    return arr, scale
 
 
 def _tiff(path: Path) -> np.ndarray:
@@ -105,10 +141,23 @@ def _tiff(path: Path) -> np.ndarray:
     return arr
 
 
-def _single(path: Path, kind: str, height, width) -> np.ndarray:
+def _single(path: Path, kind: str, height, width, depth_scale=None) -> tuple[np.ndarray, float]:
+    """The stored array of one file of a pair and its metres per unit (``depth_scale`` if given,
+    else a PNG's ``depth_scale_m`` chunk, else the dtype's default). An 8-bit depth PNG is refused
+    unless ``depth_scale`` is given: 0-255 mm is not a depth map (an exported preview)."""
+    if path.suffix.lower() == ".png":
+        arr, text_scale = _png(path)
+        if kind == "depth":
+            check_depth_bits(arr, path, depth_scale)
+        if depth_scale is None and text_scale is not None:
+            depth_scale = text_scale
+    else:
+        arr = _single_array(path, kind, height, width)
+    return arr, _scale(arr, depth_scale)
+
+
+def _single_array(path: Path, kind: str, height, width) -> np.ndarray:
     s = path.suffix.lower()
-    if s == ".png":
-        return _png(path)
     if s in (".tif", ".tiff"):
         return _tiff(path)
     if s == ".npy":
@@ -119,7 +168,10 @@ def _single(path: Path, kind: str, height, width) -> np.ndarray:
         return arr
     if s in (".bin", ".raw"):
         if height is None or width is None:
-            raise ValueError(f"raw file {path}: pass height and width (pixels)")
+            raise ValueError(
+                f"raw file {path}: its frame size is not in the file; give height and width "
+                "(pixels; tof-fpn: --height / --width)"
+            )
         return read_raw_array(path, height, width, what=f"raw {kind}")
     raise ValueError(f"unsupported suffix {s!r} of {path}")
 
@@ -175,10 +227,18 @@ def read_frame_sets(
     Returns:
         the file's :class:`FrameSet` s (several for an HDF5 file with several groups).
 
+    Camera files (an Azure Kinect ``.mkv``, ROS bags, ADI vendor-named raw files) are read by
+    :func:`~.camera_files.camera_sets` (docs/io.md).
+
     Raises:
         FormatError: a file that cannot be decoded, an array of another dtype or rank.
         ValueError: depth and amplitude of different shapes.
     """
+    from .camera_files import camera_sets  # imported here: camera_files imports this module
+
+    camera = camera_sets(depth_path, amplitude_path, depth_scale)
+    if camera is not None:
+        return camera
     p = existing_file(depth_path, "depth")
     s = p.suffix.lower()
     if s in _HDF5:
@@ -190,16 +250,17 @@ def read_frame_sets(
             raise FormatError(f"{p}: no array(s) {missing}; it holds {sorted(arrays)}")
         d = stored_frames(arrays["depth"], f"{p} [depth]")
         a = stored_frames(arrays["amplitude"], f"{p} [amplitude]")
-        sets = [FrameSet("", d, a, _scale(d, depth_scale), tuple(arrays["depth"].shape))]
+        shape = tuple(arrays["depth"].shape)
+        sets = [FrameSet("", d, a, _scale(d, depth_scale), shape, _recording_camera(arrays))]
     else:
         if amplitude_path is None:
             raise ValueError(f"{p} holds depth only; pass amplitude_path too")
         q = existing_file(amplitude_path, "amplitude")
-        raw_d = _single(p, "depth", height, width)
-        raw_a = _single(q, "amplitude", height, width)
+        raw_d, scale = _single(p, "depth", height, width, depth_scale)
+        raw_a, _ = _single(q, "amplitude", height, width)
         d, a = stored_frames(raw_d, str(p)), stored_frames(raw_a, str(q))
         check_same_shape(d, a, f"{p} / {q}")
-        sets = [FrameSet("", d, a, _scale(d, depth_scale), tuple(raw_d.shape))]
+        sets = [FrameSet("", d, a, scale, tuple(raw_d.shape))]
     for fs in sets:
         check_same_shape(fs.depth, fs.amplitude, f"{p}{' [' + fs.key + ']' if fs.key else ''}")
     return sets
@@ -217,38 +278,11 @@ def frame_set_tensors(
     return depth, amplitude
 
 
-def encode_depth(fs: FrameSet, depth: torch.Tensor) -> tuple[np.ndarray, int]:
-    """Cleaned depth (T, 1, H, W) metres -> the stored array (T, H, W) in ``fs.depth``'s dtype.
-
-    Every pixel invalid in the input (:func:`valid_mask` of the stored depth and amplitude) keeps
-    its stored value bit for bit. A valid pixel stays valid: integer files round to the nearest
-    unit and clamp to ``[1, max]`` (0 is the invalid code), floating files cast; a non-finite
-    result (which the run-time stages never give) keeps the input value. Returns the array and
-    the number of valid pixels clamped or kept that way."""
-    stored = fs.depth
-    with np.errstate(invalid="ignore"):  # valid_mask's rule on the stored values (scale > 0)
-        valid = (stored > 0) & np.isfinite(stored)
-        valid &= (fs.amplitude >= 0) & np.isfinite(fs.amplitude)
-    units = depth.detach().cpu().double()[:, 0].numpy() / fs.depth_scale
-    finite = np.isfinite(units)
-    safe = np.where(finite, units, 1.0)
-    if stored.dtype.kind in "ui":
-        r = np.rint(safe)
-        hi = float(np.iinfo(stored.dtype).max)
-        moved = (r < 1) | (r > hi)
-        new = np.clip(r, 1, hi).astype(stored.dtype)
-    else:
-        with np.errstate(over="ignore"):
-            new = safe.astype(stored.dtype)
-        moved = ~(np.isfinite(new) & (new > 0))
-    keep = ~valid | ~finite | (moved & (stored.dtype.kind == "f"))
-    out = np.where(keep, stored, new).astype(stored.dtype)
-    return out, int((valid & (~finite | moved)).sum())
-
-
-def _png_write(src: Path, dst: Path, arr: np.ndarray) -> None:
+def _png_write(src: Path, dst: Path, arr: np.ndarray, depth_scale: float | None = None) -> None:
     with Image.open(src) as im:
         text = {k: v for k, v in im.info.items() if isinstance(k, str) and isinstance(v, str)}
+    if depth_scale is not None:
+        text[PNG_SCALE_KEY] = repr(float(depth_scale))
     info = PngImagePlugin.PngInfo()
     for k, v in text.items():
         info.add_text(k, v)
@@ -283,12 +317,21 @@ def _npz_write(src: Path, dst: Path, arr: np.ndarray) -> None:
                     fh.write(zin.read(old))
 
 
-def write_like(src, dst, depths: dict[str, np.ndarray], sets: list[FrameSet]) -> Path:
+def write_like(
+    src,
+    dst,
+    depths: dict[str, np.ndarray],
+    sets: list[FrameSet],
+    depth_scale: float | None = None,
+) -> Path:
     """Write ``dst`` as a copy of the depth file ``src`` with the depth of each frame set
-    replaced by ``depths[key]`` ((T, H, W) arrays of the stored dtype, from :func:`encode_depth`).
+    replaced by ``depths[key]`` ((T, H, W) arrays of the stored dtype, from :func:`~.encode.encode_depth`).
 
     What is kept of each format: the module docstring. ``dst`` must not be ``src``; its folder
-    must exist (the caller writes to a temporary name there and renames)."""
+    must exist (the caller writes to a temporary name there and renames). ``depth_scale``: the
+    metres per unit of ``depths`` where it differs from the input's (``encode_depth``'s
+    ``output_scale``): recorded as a PNG's ``depth_scale_m`` text chunk and as an HDF5 depth
+    dataset's ``scale_m`` attribute; the other formats have no place for it."""
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise ValueError(f"write_like: dst must differ from src, got {src} twice")
@@ -304,16 +347,23 @@ def write_like(src, dst, depths: dict[str, np.ndarray], sets: list[FrameSet]) ->
                 f"{arr.dtype} {arr.shape}"
             )
         arrays[key] = np.ascontiguousarray(arr.reshape(fs.shape))
+    from .camera_files import write_camera_like  # imported here: it imports this module
+
+    if write_camera_like(src, dst, arrays, by_key):
+        return dst
     s = src.suffix.lower()
     if s in _HDF5:
         shutil.copyfile(src, dst)
         with h5py.File(dst, "r+") as f:
             for key, arr in arrays.items():
-                f[f"{key}/depth" if key else "depth"][...] = arr
+                dset = f[f"{key}/depth" if key else "depth"]
+                dset[...] = arr
+                if depth_scale is not None:
+                    dset.attrs["scale_m"] = float(depth_scale)
     elif s == ".npz":
         _npz_write(src, dst, arrays[""])
     elif s == ".png":
-        _png_write(src, dst, arrays[""])
+        _png_write(src, dst, arrays[""], depth_scale)
     elif s in (".tif", ".tiff"):
         _tiff_write(src, dst, arrays[""])
     elif s == ".npy":

@@ -1,32 +1,32 @@
 """The FPN stage in front of learned depth networks: simulated training data, a compact network,
-training and evaluation with four front ends (the top layer, beside the experiments).
+whole models that keep invalid pixels, checkpoints (the top layer).
 
 May import every layer below it (runtime, build, denoise, analysis, sim, design, cameras) and
-matplotlib through :mod:`tof_fpn_torch.plotting`. Nothing imports it but the scripts and the CLI.
+matplotlib through :mod:`tof_fpn_torch.plotting`. Nothing imports it but the CLI. The training
+experiment that compares four front ends is an example beside the package
+(``examples/train_front_ends.py``, ``examples/front_ends.py``).
 
 - :mod:`.dataset`: :class:`SimulatedFrames`, an ``IterableDataset`` with domain randomisation.
 - :mod:`.models`: :class:`DnCNN`, :class:`DepthModel` (front end + network, invalid pixels kept).
-- :mod:`.train`: :func:`train`, :func:`evaluate`, the front ends.
+- :mod:`.front_ends`: :data:`FRONT_ENDS`, :class:`Settings`, :func:`make_model` (the models a
+  checkpoint rebuilds).
 - :mod:`.checkpoint`: :func:`save_model`, :func:`load_model` (weights-only files).
 """
 
 from .checkpoint import load_model, save_model
 from .dataset import Ranges, SimulatedFrames, draw_sample
+from .front_ends import FRONT_ENDS, Settings, make_model
 from .models import DepthModel, DnCNN
-from .train import FRONT_ENDS, Settings, evaluate, fusion_thresholds, make_model, train
 
 __all__ = [
     "FRONT_ENDS",
+    "Settings",
+    "make_model",
     "DepthModel",
     "DnCNN",
     "Ranges",
-    "Settings",
     "SimulatedFrames",
     "draw_sample",
-    "evaluate",
-    "fusion_thresholds",
     "load_model",
-    "make_model",
     "save_model",
-    "train",
 ]

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import torch
 
+from .front_ends import FRONT_ENDS, Settings, make_model
 from .models import DepthModel
-from .train import FRONT_ENDS, Settings, make_model
 
 __all__ = ["CHECKPOINT_FORMAT", "load_model", "save_model"]
 
@@ -70,7 +70,7 @@ def load_model(path: str | Path) -> tuple[DepthModel, dict]:
     except Exception as exc:  # a TorchScript archive, an arbitrary pickle, a text file ...
         raise ValueError(
             f"{path} is not a model checkpoint written by tof_fpn_torch.learn.save_model "
-            f"(or scripts/train_front_ends.py): {type(exc).__name__}: {exc}".split("\n")[0]
+            f"(or examples/train_front_ends.py): {type(exc).__name__}: {exc}".split("\n")[0]
         ) from None
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__

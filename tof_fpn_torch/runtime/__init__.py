@@ -6,6 +6,7 @@ checks this). The modules take filter taps; designing them is the job of :mod:`t
 and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, never the reverse.
 
 - :mod:`.validity`: the one validity rule (:func:`valid_mask`).
+- :mod:`.noise`: every robust noise scale of the package (wavelet MAD, clipped mean, clipped RMS).
 - :mod:`.fir`: 1-D FIR kernels (polyphase / block-Toeplitz GEMMs, borders).
 - :mod:`.fpn_filter`: :func:`fpn_filter`, :class:`FPNFilter`.
 - :mod:`.fusion`: :func:`amplitude_fusion`, :class:`AmplitudeFusion` (eq. 11).

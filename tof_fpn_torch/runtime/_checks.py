@@ -8,6 +8,7 @@ from __future__ import annotations
 import torch
 
 __all__ = [
+    "check_tensor_type",
     "check_fusion_inputs",
     "check_image",
     "check_same_shape",
@@ -16,10 +17,24 @@ __all__ = [
 ]
 
 
+@torch.jit.unused
+def check_tensor_type(x, name: str, optional: bool = False) -> None:
+    """``TypeError`` unless ``x`` is a ``torch.Tensor`` (or None where ``optional``), with the
+    conversion a NumPy array needs (eager only: TorchScript types its arguments itself)."""
+    if isinstance(x, torch.Tensor) or (optional and x is None):
+        return
+    kind = type(x).__module__ + "." + type(x).__name__
+    hint = " (a NumPy array: torch.from_numpy(x))" if kind.startswith("numpy.") else ""
+    raise TypeError(
+        f"{name} must be a torch.Tensor of shape (B, C, H, W){' or None' if optional else ''}, "
+        f"got {kind}{hint}"
+    )
+
+
 def check_image(x: torch.Tensor, name: str, channels: int | None = None) -> None:
     """Check that ``x`` is a floating (B, C, H, W) tensor (with ``C == channels`` if given)."""
-    if not torch.jit.is_scripting() and not isinstance(x, torch.Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor of shape (B, C, H, W), got {type(x)}")
+    if not torch.jit.is_scripting():
+        check_tensor_type(x, name)
     if x.dim() != 4:
         raise ValueError(
             f"{name} must have shape (B, C, H, W) (4 dimensions), got {x.dim()} dimensions "

@@ -39,21 +39,23 @@ import torch
 import torch.nn.functional as F
 
 from .. import constants as K
+from .noise import clipped_rms_scale, mad_to_sigma, scale_moment
 
-__all__ = ["band_shrink", "column_offsets", "scale_moment"]
+__all__ = ["MAX_EDGE_SHARE", "NULL_Z", "band_shrink", "column_offsets"]
 
-
-def scale_moment(channels: int, clip: float) -> float:
-    """``E[|e|^2 | |e| <= clip sigma] / sigma^2`` for ``e`` with ``channels`` i.i.d. N(0, sigma^2)
-    components (1: truncated normal; 2: truncated Rayleigh), used to de-bias the clipped RMS."""
-    c = float(clip)
-    if channels == 1:
-        p = math.erf(c / math.sqrt(2.0))
-        dens = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
-        return 1.0 - 2.0 * c * dens / p
-    t = 0.5 * c * c
-    p = 1.0 - math.exp(-t)
-    return 2.0 * (1.0 - math.exp(-t) * (1.0 + t)) / p
+# Settings of the estimator (beyond the paper; the ones the calibration shares are in
+# tof_fpn_torch.constants). TorchScript reads no module-level number inside a function, so they
+# enter the functions as parameter defaults.
+#: A column step further than ``DESTRIPE_STEP_CLIP`` robust sigmas from the median step is a scene
+#: edge that most rows share, not a stripe: dropped, unless more than this share of the columns
+#: would be dropped: then they are a mode of the steps (periodic stripes such as the paper's at
+#: pi make them bimodal), not rare edges (step 4).
+MAX_EDGE_SHARE: float = 0.25
+#: The cross-validated shrinkage keeps a profile band only as far as the energy common to the top
+#: and the bottom half exceeds this many of its standard deviations without stripes (2.5: the
+#: largest value that keeps >= 10 dB on the real ADI wall; stripe-free scenes then change by
+#: < 0.1 dB, docs/destripe.md) (step 6).
+NULL_Z: float = 2.5
 
 
 def _magnitude(e: torch.Tensor) -> torch.Tensor:
@@ -61,34 +63,6 @@ def _magnitude(e: torch.Tensor) -> torch.Tensor:
     if e.shape[1] == 1:
         return e.abs()
     return torch.sqrt((e * e).sum(1, keepdim=True))
-
-
-def _robust_scale(
-    mag: torch.Tensor, ok: torch.Tensor | None, clip: float, moment: float, channels: int
-) -> torch.Tensor:
-    """Per-image scale (N,) of the per-channel noise from magnitudes ``mag`` (N, 1, R, C) at the
-    usable entries ``ok`` (None: all): a MAD-type start refined by clipped-RMS iterations."""
-    n = mag.shape[0]
-    flat = mag.reshape(n, -1)
-    sq = flat * flat
-    if ok is None:
-        okf = torch.ones_like(flat, dtype=torch.bool)
-        med = flat.median(dim=1).values
-    else:
-        okf = ok.reshape(n, -1)
-        sq = torch.where(okf, sq, 0.0)
-        med = torch.nanmedian(torch.where(okf, flat, math.nan), dim=1).values
-        med = torch.nan_to_num(med, nan=0.0)
-    count = okf.sum(1).to(mag.dtype)
-    # the median of |e| is sigma / MAD_TO_SIGMA for K = 1 and sqrt(2 ln 2) sigma for K = 2
-    start = med * K.MAD_TO_SIGMA if channels == 1 else med / math.sqrt(2.0 * math.log(2.0))
-    rms = torch.sqrt(sq.sum(1) / count.clamp_min(1.0) / channels)
-    sigma = torch.where(start > 0, start, rms)
-    for _ in range(2):
-        sel = okf & (flat <= clip * sigma[:, None])
-        m2 = torch.where(sel, sq, 0.0).sum(1) / sel.sum(1).clamp_min(1)
-        sigma = torch.sqrt(m2 / moment)
-    return sigma
 
 
 def _inliers(g: torch.Tensor, centre: torch.Tensor, limit: torch.Tensor) -> torch.Tensor:
@@ -138,7 +112,7 @@ def _pilot(
     else:  # torch's median is the lower middle value: the ((n + 1) // 2)-th smallest
         kth = (gs.shape[2] + 1) // 2
         pilot = gs.transpose(2, 3).contiguous().kthvalue(kth, dim=3).values[:, :, None]
-    sigma = _robust_scale(_magnitude(gs - pilot), oks, clip, moment, k)
+    sigma = clipped_rms_scale(_magnitude(gs - pilot), oks, clip, moment, k)
     pilot = _trimmed_means(gs, oks, pilot, clip * sigma[:, None, None, None])
     return pilot, sigma
 
@@ -170,21 +144,22 @@ def _half_means(
     return s.double() / max(1, x.shape[2])
 
 
-def _reject_steps(m: torch.Tensor, clip: float) -> torch.Tensor:
+def _reject_steps(
+    m: torch.Tensor, clip: float, max_edge_share: float = MAX_EDGE_SHARE
+) -> torch.Tensor:
     """Pair means (N, K, C) whose distance from their median over the columns exceeds ``clip``
     robust sigmas (MAD) of that distance are scene edges that most rows share (a stripe step is
     one of a population of similar steps; a wall-to-box edge is rare): they are replaced by the
-    median. Unless they are more than ``DESTRIPE_MAX_EDGE_SHARE`` of the columns: then they are a
+    median. Unless they are more than ``max_edge_share`` (:data:`MAX_EDGE_SHARE`) of the columns: then they are a
     mode of the steps, not edges (a periodic pattern such as the paper's stripes at pi makes the
     steps bimodal, and the median sits on one mode), and nothing is rejected. Medians are
     mid-point ones (``quantile(0.5)``); a zero scale rejects nothing."""
     med = torch.quantile(m, 0.5, dim=-1, keepdim=True)
     mag = _magnitude(m - med)
     typical = torch.quantile(mag, 0.5, dim=-1, keepdim=True)
-    # the median of |e| is sigma / MAD_TO_SIGMA for K = 1 and sqrt(2 ln 2) sigma for K = 2
-    sigma = typical * K.MAD_TO_SIGMA if m.shape[1] == 1 else typical / math.sqrt(2 * math.log(2))
+    sigma = mad_to_sigma(typical, m.shape[1])
     edge = (mag > clip * sigma) & (sigma > 0)
-    rare = edge.to(m.dtype).mean(-1, keepdim=True) <= K.DESTRIPE_MAX_EDGE_SHARE
+    rare = edge.to(m.dtype).mean(-1, keepdim=True) <= max_edge_share
     return torch.where(edge & rare, med, m)
 
 
@@ -337,7 +312,12 @@ def band_widths(width: int) -> list[int]:
 
 
 def _factor(
-    top: torch.Tensor, bot: torch.Tensor, full: torch.Tensor, local: bool, window: int
+    top: torch.Tensor,
+    bot: torch.Tensor,
+    full: torch.Tensor,
+    local: bool,
+    window: int,
+    null_z: float = NULL_Z,
 ) -> torch.Tensor:
     """Cross-validated positive-part factor ``clamp((C - z sd0(C)) / E, 0, 1)`` with ``C`` the
     cross energy of the two halves, ``E`` the energy of ``full`` and ``sd0(C)`` the standard
@@ -352,7 +332,7 @@ def _factor(
         cross, energy, null = (_box_sum(t, window) for t in (cross, energy, null))
     else:
         cross, energy, null = (t.sum(-1, keepdim=True) for t in (cross, energy, null))
-    signal = cross - K.DESTRIPE_NULL_Z * torch.sqrt(null)
+    signal = cross - null_z * torch.sqrt(null)
     return torch.where(energy > 0, signal / energy.clamp_min(1e-300), 0.0).clamp(0.0, 1.0)
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ._checks import check_tensor_type
+
 __all__ = ["Float32Stage"]
 
 
@@ -20,6 +22,8 @@ class Float32Stage(nn.Module):
 
     def forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
         if not torch.jit.is_scripting():
+            check_tensor_type(depth, "depth")
+            check_tensor_type(amplitude, "amplitude", optional=True)
             if torch.is_autocast_enabled(depth.device.type):
                 return self._full_precision(depth, amplitude)
         return self._forward(depth, amplitude)

@@ -24,7 +24,7 @@ Estimator (details in :mod:`._destripe_core` and docs/destripe.md):
    ``f = clamp((<p_top, p_bottom> - z sd0) / <p, p>, 0, 1)``
 
    with ``sd0`` the standard deviation of ``<p_top, p_bottom>`` without stripes (from the halves'
-   difference) and ``z = DESTRIPE_NULL_Z = 2.5``. ``<p_top, p_bottom> / <p, p>`` is the positive-part
+   difference) and ``z = NULL_Z = 2.5`` (:mod:`._destripe_core`). ``<p_top, p_bottom> / <p, p>`` is the positive-part
    James-Stein (Wiener) factor with the noise energy measured by cross-validation instead of a
    standard-error formula: measured, ``sigma / sqrt(rows)`` undercounted the noise that the
    integration of trimmed means leaves and all scene leakage, and let a stripe-free 32 x 39 scene

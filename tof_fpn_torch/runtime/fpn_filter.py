@@ -24,7 +24,7 @@ import torch
 from torch import nn
 from torch.nn.utils import parametrize
 
-from ._checks import check_image, check_taps, normalize_dims
+from ._checks import check_image, check_taps, check_tensor_type, normalize_dims
 from .fir import BORDER_MODES, fir_last, fir_operators
 from .holes import certified, holed_exact, holed_lines, outlier_ratio, tap_gains
 from .validity import all_valid, valid_mask, valid_range
@@ -291,6 +291,8 @@ class FPNFilter(nn.Module):
 
     def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         if not torch.jit.is_scripting():
+            check_tensor_type(x, "x")
+            check_tensor_type(mask, "mask", optional=True)
             if torch.is_autocast_enabled(x.device.type):
                 return self._full_precision(x, mask)
         return self._forward(x, mask)

@@ -120,6 +120,8 @@ class AmplitudeFusion(nn.Module):
                   [2.6000, 2.2000]]]])
     """
 
+    __jit_ignored_attributes__ = ["bins"]
+
     def __init__(
         self, low: float = K.FUSION_LOW, high: float = K.FUSION_HIGH, floor: float = K.FUSION_FLOOR
     ) -> None:
@@ -128,6 +130,7 @@ class AmplitudeFusion(nn.Module):
         self.low = float(low)
         self.high = float(high)
         self.floor = float(floor)
+        self.bins = None  # what a builder measured the thresholds on (AmplitudeBins), if any
 
     def extra_repr(self) -> str:
         return f"low={self.low}, high={self.high}, floor={self.floor}"

@@ -11,13 +11,12 @@ Statistic, per image, orientation and notch (torch only, exportable: sums, no so
 1. The column profile ``p(x)``: the mean of the depth down each column over the pixels that are
    valid and not outliers of the notch residual ``e = x - H x`` (``|e| <= 3 s``, ``s`` a robust
    scale of ``e``: object edges and thin high-contrast structure drop out), minus its mean.
-2. Its Hann-windowed DFT power at ``w0`` and at the ``R = 8`` nearest reference frequencies 3 to
-   12 bins away inside ``(0, pi)`` and 2.5 bins or more from every notch (another stripe line),
-   evaluated exactly (no FFT bins: any width works).
+2. Its Hann-windowed DFT power at ``w0`` and at the ``R`` (:data:`REFERENCES`, 8) nearest
+   reference frequencies 3 to 12 bins away inside ``(0, pi)`` and 2.5 bins or more from every notch
+   (another stripe line), evaluated exactly (no FFT bins: any width works).
 3. ``T = P(w0) / mean P(ref)``. Without a line at ``w0`` (any smooth local spectrum) ``T`` follows
    ``F(2, 2R)``, ``P(T > t) = (1 + t / R)^-R``; the gate opens above the threshold of false-alarm
-   probability ``a`` (:data:`~tof_fpn_torch.constants.GATE_FALSE_ALARM`, 1e-3 per notch and
-   image), fully at twice it.
+   probability ``a`` (:data:`FALSE_ALARM`, 1e-3 per notch and image), fully at twice it.
 4. A floor in depth units: the line's amplitude ``a_hat`` (from ``P(w0) - mean P(ref)``) must be at
    least ``min_stripe`` (:data:`~tof_fpn_torch.constants.GATE_MIN_STRIPE`) times the per-pixel
    noise ``s / sqrt(g_e)`` (``g_e = ||delta - h||^2``), fully at twice that.
@@ -39,8 +38,7 @@ docs/runtime.md)::
 ``h_0`` the filter's centre tap (its product over the filtered dimensions), ``sigma_p^2`` the
 per-pixel noise, ``P_s`` the stripe power per pixel (from the line amplitudes above). ``dMSE`` is
 negative for every ``0 < g < B / C`` (smallest at ``B / (2 C)``). The gate is capped at
-``clamp((B / C - f) / (1 - f), 0, 1)`` (``f`` = :data:`~tof_fpn_torch.constants.GATE_RISK_FLOOR`,
-0.5): closed where the estimate says the full change costs at least twice what it gains, fully
+``clamp((B / C - f) / (1 - f), 0, 1)`` (``f`` = :data:`RISK_FLOOR`, 0.5): closed where the estimate says the full change costs at least twice what it gains, fully
 open where it gains more than it costs, and in between below ``B / C``, where the estimated risk
 falls. It is a veto, not a guarantee: the stripe power from one frame includes any scene
 content at the notch frequency (up to 2.8x too high on striped planar scenes) and misses the
@@ -61,33 +59,42 @@ import torch
 
 from .. import constants as K
 from .fpn_filter import _tracing
+from .noise import clipped_scale
 
-__all__ = ["false_alarm_threshold", "noise_power", "risk_shrinkage", "stripe_gate"]
+__all__ = [
+    "FALSE_ALARM",
+    "NOISE_WINDOW",
+    "REFERENCES",
+    "RISK_FLOOR",
+    "false_alarm_threshold",
+    "line_gate",
+    "noise_power",
+    "risk_shrinkage",
+    "stripe_gate",
+]
+
+# The gate's settings (beyond the paper). TorchScript reads no module-level number inside a
+# function, so they enter the functions as parameter defaults.
+#: False-alarm probability of the line test, per notch frequency and image.
+FALSE_ALARM: float = 1e-3
+#: Reference frequencies the line test compares the notch frequency's power with.
+REFERENCES: int = 8
+#: Side of the window (pixels) of the local mean of the squared finest diagonal wavelet
+#: coefficients that caps the per-pixel noise power (:func:`noise_power`).
+NOISE_WINDOW: int = 3
+#: The gate closes where the stage's estimated benefit is at most this share of its estimated cost
+#: (and opens fully where the benefit exceeds the cost): :func:`risk_shrinkage`.
+RISK_FLOOR: float = 0.5
 
 
-def false_alarm_threshold(references: int, probability: float = K.GATE_FALSE_ALARM) -> float:
+def false_alarm_threshold(references: int, probability: float = FALSE_ALARM) -> float:
     """``t`` with ``P(F(2, 2R) > t) = (1 + t / R)^-R = probability`` for ``R`` references."""
     r = float(references)
     return r * (probability ** (-1.0 / r) - 1.0)
 
 
-def _robust_scale(e: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
-    """(B, 1, 1, 1) robust standard deviation of ``e`` over ``keep``: clipped mean |e|."""
-    a = torch.where(keep, e.abs(), torch.zeros_like(e))
-    n = keep.sum((-3, -2, -1), keepdim=True).clamp_min(1).to(e.dtype)
-    s = 1.2533141373155003 * a.sum((-3, -2, -1), keepdim=True) / n  # sqrt(pi/2) mean|e|
-    for _ in range(3):
-        inside = keep & (a <= 3.0 * s)
-        m = inside.sum((-3, -2, -1), keepdim=True).clamp_min(1).to(e.dtype)
-        # E|e| of a normal clipped at 3 sigma is 0.7866 sigma (instead of 0.7979)
-        s = torch.where(inside, a, torch.zeros_like(a)).sum((-3, -2, -1), keepdim=True) / (
-            0.786619 * m
-        )
-    return s.clamp_min(1e-30)
-
-
 def _line_power(
-    p: torch.Tensor, w0: float, notches: list[float]
+    p: torch.Tensor, w0: float, notches: list[float], references: int
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Hann-windowed DFT power of profiles ``p`` (B, L) at ``w0`` and at the ``R`` reference
     frequencies nearest to it (3 to 12 bins away, inside ``(0, pi)``, at least 2.5 bins from every
@@ -104,7 +111,7 @@ def _line_power(
     for w in notches:
         bad = bad | ((cand - w).abs() < 2.5 * step)
     score = offsets.abs() + 1000.0 * bad.to(p.dtype)
-    ref = cand[torch.topk(score, K.GATE_REFERENCES, largest=False).indices]
+    ref = cand[torch.topk(score, references, largest=False).indices]
     omega = torch.cat([torch.full((1,), w0, dtype=p.dtype, device=p.device), ref])
     phase = n.unsqueeze(1) * omega.unsqueeze(0)  # (L, F)
     xw = p * win
@@ -112,7 +119,7 @@ def _line_power(
     im = xw.matmul(torch.sin(phase))
     power = re * re + im * im  # (B, F)
     # (a sum, not .mean: ONNX ReduceMean changed in opset 18 and does not convert down to 17)
-    mean_ref = power[:, 1:].sum(1) / float(K.GATE_REFERENCES)
+    mean_ref = power[:, 1:].sum(1) / float(references)
     return power[:, 0], mean_ref, 0.5 * (length + 1.0)  # 0.5 (L + 1): the sum of the window
 
 
@@ -158,6 +165,7 @@ def line_gate(
     notches: list[float],
     gain: float,
     min_stripe: float = K.GATE_MIN_STRIPE,
+    references: int = REFERENCES,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`stripe_gate` and the stripe power per pixel its line amplitudes imply (the sum over
     notches and orientations of ``a^2`` at ``pi``, ``a^2 / 2`` below), both (B, 1, 1, 1)."""
@@ -166,11 +174,11 @@ def line_gate(
     e = x - filtered
     keep = torch.isfinite(e) if valid is None else valid & torch.isfinite(e)
     e = torch.where(keep, e, torch.zeros_like(e))
-    s = _robust_scale(e, keep)
+    s = clipped_scale(e, keep, [-3, -2, -1]).clamp_min(1e-30)
     k = keep & (e.abs() <= 3.0 * s)
     xk = torch.where(k, x, torch.zeros_like(x))
     noise = (s / math.sqrt(max(gain, 1e-12))).flatten()
-    t_a = false_alarm_threshold(K.GATE_REFERENCES)
+    t_a = false_alarm_threshold(references)
     gate = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
     power = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
     for d in dims:
@@ -181,7 +189,7 @@ def line_gate(
         mean = (p * has).sum(1, keepdim=True) / has.sum(1, keepdim=True).clamp_min(1)
         p = torch.where(has, p - mean, torch.zeros_like(p))
         for w0 in notches:
-            p0, ref, wsum = _line_power(p, w0, notches)
+            p0, ref, wsum = _line_power(p, w0, notches, references)
             t = p0 / ref.clamp_min(1e-30)
             scale = 1.0 if abs(w0 - math.pi) < 1e-9 else 0.5  # a cos at w0 < pi: half in w0
             amp = (p0 - ref).clamp_min(0.0).sqrt() / (scale * wsum)
@@ -195,7 +203,10 @@ def line_gate(
 
 
 def noise_power(
-    x: torch.Tensor, amplitude: torch.Tensor | None, valid: torch.Tensor | None
+    x: torch.Tensor,
+    amplitude: torch.Tensor | None,
+    valid: torch.Tensor | None,
+    window: int = NOISE_WINDOW,
 ) -> torch.Tensor:
     """(B, 1, H, W) per-pixel noise power ``sigma_p^2`` of depth ``x`` (see the module docstring):
     the ToF law ``(k / A_p)^2`` (or one robust level without an amplitude), capped by the local
@@ -225,17 +236,15 @@ def noise_power(
         if not dense:
             a = torch.where(ok, a, torch.zeros_like(a))
         a4 = 0.25 * (a[..., :-1, :-1] + a[..., :-1, 1:] + a[..., 1:, :-1] + a[..., 1:, 1:])
-        k = _robust_scale(d * a4, ok4)
+        k = clipped_scale(d * a4, ok4, [-3, -2, -1]).clamp_min(1e-30)
         law = (k / a4.clamp_min(1e-30)) ** 2
     else:
-        law = (_robust_scale(d, ok4) ** 2).expand_as(d)
-    r = K.GATE_NOISE_WINDOW // 2
+        law = (clipped_scale(d, ok4, [-3, -2, -1]).clamp_min(1e-30) ** 2).expand_as(d)
+    r = window // 2
     # the local mean of d^2 over the window's usable blocks (count_include_pad=False: borders)
-    local = torch.nn.functional.avg_pool2d(d * d, K.GATE_NOISE_WINDOW, 1, r, False, False)
+    local = torch.nn.functional.avg_pool2d(d * d, window, 1, r, False, False)
     if not dense:
-        den = torch.nn.functional.avg_pool2d(
-            ok4.to(x.dtype), K.GATE_NOISE_WINDOW, 1, r, False, False
-        )
+        den = torch.nn.functional.avg_pool2d(ok4.to(x.dtype), window, 1, r, False, False)
         local = local / den.clamp_min(1e-30)
     var = torch.minimum(law, local)
     if not dense:
@@ -252,7 +261,7 @@ def risk_shrinkage(
     stripe_power: torch.Tensor,
     centre: float,
     valid: torch.Tensor | None,
-    floor: float = K.GATE_RISK_FLOOR,
+    floor: float = RISK_FLOOR,
 ) -> torch.Tensor:
     """(B, 1, 1, 1) cap ``clamp((B / C - floor) / (1 - floor), 0, 1)`` on the gate (module
     docstring: the estimated risk change of the gated output ``x + g change`` is ``g^2 C - g B``;

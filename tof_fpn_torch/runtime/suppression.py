@@ -74,6 +74,13 @@ class FPNSuppression(Float32Stage):
         gate: apply the notch part through the per-image stripe gate.
         min_stripe: the gate's floor: the smallest stripe amplitude, in units of the per-pixel
             noise, that opens it.
+        stripe_scale: the factor the gate's risk check applies to the stripe power it reads off
+            a frame's column profile (> 0; 1: as read). The profile averages the stripes down
+            each column, so where their strength varies with the amplitude the read power is
+            the square of a mean, below the mean square the notch removes (2.6x on a planar
+            scene with stripes ``exp(-A / 40)``); a builder that measured the stripes against
+            the amplitude on calibration frames sets it
+            (:func:`tof_fpn_torch.build.suppression_from_data`).
 
     Shape:
         - depth: (B, 1, H, W) float; invalid pixels (NaN, +-inf, <= 0, or an amplitude that is NaN,
@@ -89,7 +96,7 @@ class FPNSuppression(Float32Stage):
     """
 
     __jit_ignored_attributes__ = ["estimate"]
-    __jit_unused_properties__ = ["design", "adaptive"]
+    __jit_unused_properties__ = ["design"]
 
     def __init__(
         self,
@@ -98,6 +105,7 @@ class FPNSuppression(Float32Stage):
         destripe: nn.Module | None = None,
         gate: bool = True,
         min_stripe: float = K.GATE_MIN_STRIPE,
+        stripe_scale: float = 1.0,
     ) -> None:
         super().__init__()
         if filter is not None and not isinstance(filter, FPNFilter):
@@ -118,11 +126,14 @@ class FPNSuppression(Float32Stage):
             )
         if not (isinstance(min_stripe, (int, float)) and 0.0 <= min_stripe < math.inf):
             raise ValueError(f"min_stripe must be a finite number >= 0, got {min_stripe!r}")
+        if not (isinstance(stripe_scale, (int, float)) and 0.0 < stripe_scale < math.inf):
+            raise ValueError(f"stripe_scale must be a finite number > 0, got {stripe_scale!r}")
         self.filter = filter
         self.fusion = fusion
         self.destripe = destripe
         self.gate = bool(gate) and filter is not None
         self.min_stripe = float(min_stripe)
+        self.stripe_scale = float(stripe_scale)
         self.noise_gain = 0.0 if filter is None else _noise_gain(filter.taps)
         self.centre = 1.0 if filter is None else _centre(filter.taps, len(filter.dims))
         self.estimate = None  # the stripe estimate, when a builder made this module from data
@@ -133,17 +144,13 @@ class FPNSuppression(Float32Stage):
         return None if self.filter is None else self.filter.design
 
     @property
-    def adaptive(self) -> bool:
-        """Whether the notch output is fused with the raw depth by amplitude (eq. 11)."""
-        return self.fusion is not None
-
-    @property
     def needs_amplitude(self) -> bool:
-        """Whether :meth:`forward` needs an amplitude."""
+        """Whether :meth:`forward` needs an amplitude: the notch output is fused with the raw
+        depth by amplitude (eq. 11; the "adaptive" stage of the paper)."""
         return self.fusion is not None
 
     def extra_repr(self) -> str:
-        return f"gate={self.gate}, min_stripe={self.min_stripe}"
+        return f"gate={self.gate}, min_stripe={self.min_stripe}, stripe_scale={self.stripe_scale}"
 
     def _forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
         check_image(depth, "depth", 1)
@@ -185,17 +192,56 @@ class FPNSuppression(Float32Stage):
             out = fusion(filtered, depth, amplitude)
         if not self.gate:
             return out
-        g, stripes = line_gate(
-            depth, filtered, mask, notch.dims, notch.notches, self.noise_gain, self.min_stripe
-        )
-        if not _tracing() and not bool(g.any()):  # no stripes anywhere: nothing to weigh
+        g = self._gate(depth, amplitude, mask, filtered, out)
+        if g is None:  # no stripes anywhere: nothing to weigh
             return depth
-        weight = torch.ones_like(depth)
-        if fusion is not None and amplitude is not None:  # the fusion is affine in its inputs:
-            weight = fusion(weight + 1.0, weight, amplitude) - 1.0  # its weight w_p, any kind
-        noise = noise_power(depth, amplitude, mask)
-        g = g * risk_shrinkage(out - depth, weight, noise, stripes, self.centre, mask)
         blended = depth + g.to(depth.dtype) * (out - depth)
         if mask is None:
             return blended
         return torch.where(mask, blended, depth)
+
+    def _gate(
+        self,
+        depth: torch.Tensor,
+        amplitude: torch.Tensor | None,
+        mask: torch.Tensor | None,
+        filtered: torch.Tensor,
+        out: torch.Tensor,
+    ) -> torch.Tensor | None:
+        """(B, 1, 1, 1) gate: the line test times the risk check (None in eager mode when the
+        line test is closed for every image)."""
+        notch = self.filter
+        assert notch is not None
+        fusion = self.fusion
+        g, stripes = line_gate(
+            depth, filtered, mask, notch.dims, notch.notches, self.noise_gain, self.min_stripe
+        )
+        if not _tracing() and not bool(g.any()):
+            return None
+        weight = torch.ones_like(depth)
+        if fusion is not None and amplitude is not None:  # the fusion is affine in its inputs:
+            weight = fusion(weight + 1.0, weight, amplitude) - 1.0  # its weight w_p, any kind
+        noise = noise_power(depth, amplitude, mask)
+        stripes = stripes * self.stripe_scale
+        return g * risk_shrinkage(out - depth, weight, noise, stripes, self.centre, mask)
+
+    @torch.jit.unused
+    def gate_values(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None):
+        """(B,) the notch part's per-image gate in [0, 1] (1 for every image without the gate,
+        0 without a notch filter): how much of the notch each image gets. For reports; it runs
+        the filter again."""
+        B = depth.shape[0]
+        if self.filter is None:
+            return torch.zeros(B)
+        if not self.gate:
+            return torch.ones(B)
+        with torch.no_grad():
+            x = depth.float()
+            amp = None if amplitude is None else amplitude.float()
+            mask = valid_mask(x, amp)
+            filtered = self.filter(x, mask)
+            out = filtered
+            if self.fusion is not None and amp is not None:
+                out = self.fusion(filtered, x, amp)
+            g = self._gate(x, amp, mask, filtered, out)
+        return torch.zeros(B) if g is None else g.flatten().cpu()

@@ -17,7 +17,8 @@ initialised from given thresholds; the same ramp as :class:`AmplitudeFusion`, di
 thresholds almost everywhere.
 
 For export, freeze the parametrisation (:func:`freeze`): the taps become a plain tensor again and
-the module scripts and exports like any other.
+the module scripts and exports like any other. ``torch.jit.script`` of a module that still holds
+the parametrisation is refused with a message saying so (TorchScript cannot run parametrisations).
 """
 
 from __future__ import annotations
@@ -57,6 +58,18 @@ class KeepZeros(nn.Module):
         g = 0.5 * (g + g.flip(0))  # symmetric: linear phase
         taps = _convolve(g, self.fixed.to(g.dtype))
         return taps / taps.sum()  # unit DC: a flat depth passes unchanged (no scale bias)
+
+    def __prepare_scriptable__(self) -> KeepZeros:
+        """Refuse ``torch.jit.script`` with the way out: TorchScript cannot run parametrisations
+        (the scripted module would fail on its first call with "Parametrization is not working
+        with scripting"), so a module holding one is refused when it is scripted."""
+        raise RuntimeError(
+            "cannot script a module whose notch taps are trainable (a KeepZeros parametrisation: "
+            "TorchScript cannot run torch.nn.utils.parametrize). Call "
+            "tof_fpn_torch.runtime.freeze(module) first (it leaves the current taps as plain "
+            "parameters), or export with tof_fpn_torch.export.export_torchscript, which scripts "
+            "a frozen copy"
+        )
 
     def right_inverse(self, taps: torch.Tensor) -> torch.Tensor:
         """The least-squares ``G`` with ``A * G = taps``."""

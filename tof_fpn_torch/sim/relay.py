@@ -27,9 +27,10 @@ from collections import OrderedDict
 
 import torch
 
-from .. import constants as K
+__all__ = ["CACHE_SIZE", "relay_matrix", "scene_relay"]
 
-__all__ = ["relay_matrix", "scene_relay"]
+#: Relay matrices (one per frame size, geometry and step) kept in memory.
+CACHE_SIZE: int = 2
 
 _CACHE: OrderedDict = OrderedDict()
 _LOCK = threading.Lock()  # the diagnosis fits candidates in threads
@@ -74,7 +75,7 @@ def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre):
         x.T.contiguous().float() for x in (wgt, wgt * torch.cos(psi), wgt * torch.sin(psi))
     ) + (src,)
     _CACHE[key] = out
-    while len(_CACHE) > K.RELAY_CACHE_SIZE:
+    while len(_CACHE) > CACHE_SIZE:
         _CACHE.popitem(last=False)
     return out
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from .. import constants as K
+from ._synthetic import _one_synthetic, _u
 
 __all__ = ["Scene", "planar_scene", "synthetic_scene"]
 
@@ -120,94 +121,6 @@ def _check_seed_batch(seed: int, batch: int) -> None:
         raise ValueError(f"seed must be an int >= 0, got {seed!r}")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise ValueError(f"batch must be an int >= 1, got {batch!r}")
-
-
-def _u(g: torch.Generator, low: float = 0.0, high: float = 1.0) -> float:
-    return low + (high - low) * float(torch.rand((), generator=g, dtype=torch.float64))
-
-
-def _one_synthetic(
-    h: int, w: int, g: torch.Generator, dmin: float, dmax: float, amax: float
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """One Fig.-7-like scene (float64 CPU): depth in [dmin, dmax], amplitude in [0, amax]."""
-    yy, xx = torch.meshgrid(
-        torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij"
-    )
-    s = min(h, w)
-    span = dmax - dmin
-    # background: a slanted, slightly curved wall from far (top) to mid range (bottom)
-    tilt = _u(g, 0.25, 0.45)
-    depth = dmax - tilt * span * (yy / (h - 1)) - 0.05 * span * ((xx / (w - 1) - 0.5) ** 2)
-    amp = amax * (0.12 + 0.10 * (xx / (w - 1))) + 0.0 * yy  # dim, smooth
-    amp = amp * (1.0 + 0.15 * torch.cos(2 * math.pi * yy / _u(g, 25, 45)))
-
-    def material() -> float:
-        return amax * _u(g, 0.05, 1.0)
-
-    # fronto-parallel rectangles (edges)
-    for _ in range(5):
-        rh, rw = int(_u(g, 0.12, 0.3) * s), int(_u(g, 0.12, 0.3) * s)
-        y0, x0 = int(_u(g, 0, h - rh)), int(_u(g, 0, w - rw))
-        m = (yy >= y0) & (yy < y0 + rh) & (xx >= x0) & (xx < x0 + rw)
-        depth = torch.where(
-            m, torch.full_like(depth, _u(g, dmin + 0.1 * span, dmax - 0.2 * span)), depth
-        )
-        amp = torch.where(m, torch.full_like(amp, material()), amp)
-    # a wedge (linear depth ramp) with a striped texture in amplitude
-    y0, x0 = int(_u(g, 0, 0.6 * h)), int(_u(g, 0, 0.6 * w))
-    m = (yy >= y0) & (yy < y0 + 0.35 * s) & (xx >= x0) & (xx < x0 + 0.3 * s)
-    ramp = dmin + span * (0.2 + 0.5 * (xx - x0) / (0.3 * s))
-    depth = torch.where(m, ramp, depth)
-    amp = torch.where(m, material() * (0.6 + 0.4 * torch.sign(torch.sin(xx * 0.9))), amp)
-    # a hemisphere (smooth curved surface) with radial shading
-    cy, cx, r = _u(g, 0.25, 0.75) * h, _u(g, 0.25, 0.75) * w, _u(g, 0.1, 0.16) * s
-    rr2 = (yy - cy) ** 2 + (xx - cx) ** 2
-    m = rr2 < r * r
-    zc = _u(g, dmin + 0.3 * span, dmin + 0.6 * span)
-    cap = zc - 0.12 * span * torch.sqrt(torch.clamp(1 - rr2 / (r * r), min=0.0))
-    depth = torch.where(m, cap, depth)
-    amp = torch.where(
-        m, material() * (0.5 + 0.5 * torch.sqrt(torch.clamp(1 - rr2 / (r * r), min=0))), amp
-    )
-    # concentric rings: depth steps (contours) in a disc
-    cy, cx, r = _u(g, 0.2, 0.8) * h, _u(g, 0.2, 0.8) * w, _u(g, 0.12, 0.18) * s
-    rad = torch.sqrt((yy - cy) ** 2 + (xx - cx) ** 2)
-    m = rad < r
-    ring = torch.floor(rad / max(r / 5.0, 2.0))
-    depth = torch.where(m, dmin + span * (0.15 + 0.08 * torch.remainder(ring, 3)), depth)
-    amp = torch.where(m, amax * (0.2 + 0.25 * torch.remainder(ring, 2)), amp)
-    # Siemens star: fine radial detail down to the pixel scale
-    cy, cx, r = _u(g, 0.2, 0.8) * h, _u(g, 0.2, 0.8) * w, _u(g, 0.12, 0.17) * s
-    rad = torch.sqrt((yy - cy) ** 2 + (xx - cx) ** 2)
-    ang = torch.atan2(yy - cy, xx - cx)
-    m = rad < r
-    spoke = torch.sin(12 * ang) > 0
-    zs = _u(g, dmin + 0.25 * span, dmin + 0.5 * span)
-    depth = torch.where(m & spoke, torch.full_like(depth, zs), depth)
-    depth = torch.where(m & ~spoke, torch.full_like(depth, zs + 0.15 * span), depth)
-    amp = torch.where(m, torch.where(spoke, torch.full_like(amp, material()), amp), amp)
-    # thin bars 1-3 px wide at several depths (fine details)
-    for k in range(4):
-        width = 1 + k % 3
-        x0 = int(_u(g, 0.05, 0.9) * w)
-        y0, y1 = int(_u(g, 0, 0.4) * h), int(_u(g, 0.6, 1.0) * h)
-        m = (xx >= x0) & (xx < x0 + width) & (yy >= y0) & (yy < y1)
-        depth = torch.where(m, torch.full_like(depth, _u(g, dmin, dmin + 0.4 * span)), depth)
-        amp = torch.where(m, torch.full_like(amp, material()), amp)
-    # a depth grating (sinusoidal surface) patch
-    y0, x0 = int(_u(g, 0, 0.7 * h)), int(_u(g, 0, 0.7 * w))
-    m = (yy >= y0) & (yy < y0 + 0.25 * s) & (xx >= x0) & (xx < x0 + 0.25 * s)
-    zg = _u(g, dmin + 0.3 * span, dmin + 0.7 * span)
-    depth = torch.where(m, zg + 0.05 * span * torch.sin(2 * math.pi * (xx - x0) / 7.0), depth)
-    amp = torch.where(m, torch.full_like(amp, material()), amp)
-    # a dark, near-zero-amplitude object: the low end of the range
-    cy, cx = _u(g, 0.1, 0.9) * h, _u(g, 0.1, 0.9) * w
-    m = ((yy - cy) / (0.08 * s)) ** 2 + ((xx - cx) / (0.14 * s)) ** 2 < 1
-    depth = torch.where(
-        m, torch.full_like(depth, _u(g, dmin + 0.2 * span, dmax - 0.1 * span)), depth
-    )
-    amp = torch.where(m, torch.full_like(amp, amax * _u(g, 0.0, 0.04)), amp)
-    return depth.clamp(dmin, dmax), amp.clamp(0.0, amax)
 
 
 def synthetic_scene(

@@ -1,0 +1,147 @@
+"""``diagnose`` on real data (issue 10): the ADI ADTF3175 wall capture and a Kinect v2 P0 pattern.
+
+1. ADI wall (``../shared/data/real/adi_adtf3175``): one frame, 512 x 512, depth and IR, no scene:
+   the scene is estimated from the capture. Expected: ``fpn_pattern`` with a broadband column
+   profile (not the 2 pi / 3 and pi of the baseline), fit improved.
+2. Kinect v2 P0 column structure: the column-to-column phase steps of the 80 MHz P0 table
+   (median over rows; its rows alternate by pi, so steps along the row are used), high-passed
+   over 31 columns, 160 central columns, converted to depth at 80 MHz, added to every frame of a
+   recording that ``benchmarks/concealed_generator.py`` makes of a simulated scene (120 x 160, 24
+   frames, scene given).
+
+    python benchmarks/diagnose_real.py            # writes docs/figures/diagnosis_real.json
+    python benchmarks/diagnose_real.py NAME ...   # only those cases (the others kept from the JSON)
+
+A missing capture is an error (the script stops and says where it looked).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+from concealed_generator import C_AIR, generate  # noqa: E402 (a sibling script)
+
+REAL = ROOT.parent / "shared" / "data" / "real"
+ADI = ("adi_adtf3175/wall_depth_u16le_512x512.bin", "adi_adtf3175/wall_ir_u16le_512x512.bin")
+P0 = "kinect_v2_p0/p0tables_3x424x512_u16le.dat"
+
+
+def _path(rel: str) -> Path:
+    p = REAL / rel
+    if not p.is_file():
+        raise SystemExit(f"real capture missing: {p}")
+    return p
+
+
+def _summary(diag) -> dict:
+    rep = diag.report
+    out = {
+        "verdict": rep["verdict"],
+        "effects": rep["effects"],
+        "fit": rep["fit"],
+        "located_before": [
+            {k: w.get(k) for k in ("statistic", "axis", "excess_sigma", "spectrum") if k in w}
+            for w in rep["located_before"]
+        ],
+        "unexplained": [w.get("statistic") for w in rep["unexplained"]],
+        "notes": rep["recording"]["notes"],
+        "seconds": rep["seconds"],
+    }
+    return out
+
+
+def adi() -> dict:
+    from tof_fpn_torch import io as tio
+    from tof_fpn_torch.diagnosis import diagnose
+
+    depth, ir = tio.read_adi_depth_ir(_path(ADI[0]), _path(ADI[1]))
+    meta = {
+        "modulation_frequency_hz": None,
+        "integration_time_us": None,
+        "n_phases": None,
+        "amplitude_unit": "IR counts",
+        "source": "ADI ADTF3175 wall capture (one frame)",
+    }
+    rec = tio.Recording(depth, ir, meta)
+    diag = diagnose(rec, None)
+    return _summary(diag)
+
+
+#: modulation frequencies of the three P0 tables (libfreenect2's order)
+P0_FREQUENCIES = (80e6, 16e6, 120e6)
+
+
+def p0_column_profile(width: int = 160, table: int = 0) -> np.ndarray:
+    """The P0 table's column structure in metres (``width`` central columns) at its frequency."""
+    from tof_fpn_torch import io as tio
+
+    t = tio.read_kinect_v2_p0(_path(P0))[table, 0].double().numpy()  # rad
+    z = np.exp(1j * t)
+    step = np.median(np.angle(z[:, 1:] * np.conj(z[:, :-1])), axis=0)
+    col = np.concatenate([[0.0], np.cumsum(step)])
+    hp = col - np.convolve(np.pad(col, 15, mode="edge"), np.ones(31) / 31, "valid")
+    c0 = (hp.size - width) // 2
+    prof = hp[c0 : c0 + width] * C_AIR / (4 * math.pi * P0_FREQUENCIES[table])
+    return prof - prof.mean()
+
+
+def kinect(seed: int = 3, table: int = 0) -> dict:
+    from tof_fpn_torch.diagnosis import diagnose
+    from tof_fpn_torch.io import Recording
+    from tof_fpn_torch.sim import synthetic_scene
+
+    h, w, t = 120, 160, 24
+    sc = synthetic_scene(h, w, seed=seed, depth_range=(0.5, 6.0))
+    d = sc.depth[0, 0].double().numpy()
+    r = sc.reflectance[0, 0].double().numpy()
+    depth, amp, meta, _ = generate(d, r, frames=t, seed=seed)
+    prof = p0_column_profile(w, table)
+    depth = depth + prof[None, None, :].astype(np.float32)
+    rec = Recording(torch.from_numpy(depth), torch.from_numpy(amp), meta)
+    diag = diagnose(rec, sc)
+    out = _summary(diag)
+    out["p0_table_mhz"] = P0_FREQUENCIES[table] / 1e6
+    out["planted_profile_rms_mm"] = float(prof.std() * 1e3)
+    out["planted_profile_peak_to_peak_mm"] = float(np.ptp(prof) * 1e3)
+    fitted = diag.model.profiles.get("columns")
+    if fitted is not None:
+        f = fitted.double().numpy()
+        if f.std() > 0:
+            out["profile_correlation"] = float(np.corrcoef(f - f.mean(), prof)[0, 1])
+    return out
+
+
+def main() -> None:
+    torch.set_num_threads(1)
+    res = {}
+    only = sys.argv[1:]
+    jobs = (
+        ("adi_wall", adi),
+        ("kinect_v2_p0_columns_80mhz", lambda: kinect(table=0)),
+        ("kinect_v2_p0_columns_16mhz", lambda: kinect(table=1)),
+    )
+    out = ROOT / "docs" / "figures" / "diagnosis_real.json"
+    if only and out.is_file():
+        res = json.loads(out.read_text())
+    for name, fn in jobs:
+        if only and name not in only:
+            continue
+        t0 = time.perf_counter()
+        res[name] = fn()
+        res[name]["wall_seconds"] = time.perf_counter() - t0
+        print(name, json.dumps(res[name]["verdict"]), json.dumps(res[name]["fit"]), flush=True)
+    out.write_text(json.dumps(res, indent=1, default=float) + "\n")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

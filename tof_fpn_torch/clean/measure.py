@@ -1,0 +1,168 @@
+"""What cleaning did to a file, measured on what was written: the record of ``tof-fpn clean``.
+
+Per file (its frames, up to :data:`REPORT_FRAMES` evenly spaced per frame set, as decoded from the
+input and from the output *as stored*, so integer rounding counts):
+
+* ``stripes``: for columns and rows, the stripe energy before and after (mm^2; the covariance of
+  the two halves' 9-pixel high-passed profiles over the quiet pixels,
+  :func:`~tof_fpn_torch.analysis.column_stripe_energy` with
+  :func:`~tof_fpn_torch.analysis.quiet_mask`: noise does not count, scene edges are left out) and
+  the significance ``z = r sqrt(n)`` of the input's pattern (the halves' profiles' correlation
+  ``r`` over ``n`` columns; a common pattern, i.e. a stripe, from 4 on);
+* ``noise_mm``: the per-pixel noise (wavelet MAD, :func:`~tof_fpn_torch.denoise.estimate_sigma`);
+* ``found``: whether a stripe pattern is in the input: ``z`` >= :data:`STRIPE_Z` and an amplitude
+  ``sqrt(E)`` of at least the gate's floor (``GATE_MIN_STRIPE`` times the noise);
+* ``gate``: the notch stage's per-frame gate (mean, and how many frames it opened for), where
+  there is a notch;
+* ``lowpass_change_mm``: the largest RMS change of the 15 x 15 low-passed depth
+  (:func:`~tof_fpn_torch.analysis.lowpass_change`): how far the scene itself moved;
+* ``changed``: the share of valid pixels whose stored value changed.
+
+:func:`summarise` condenses the records of a run into the lines the command prints.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+
+import torch
+
+from .. import constants as K
+from ..analysis import column_stripe_energy, lowpass_change
+from ..analysis.stripe_energy import quiet_mask
+from ..denoise import estimate_sigma
+from ..io.stored import FrameSet, frame_set_tensors
+from ..runtime import valid_mask
+
+__all__ = ["REPORT_FRAMES", "STRIPE_Z", "file_report", "summarise"]
+
+#: frames measured per frame set (evenly spaced)
+REPORT_FRAMES = 16
+#: a stripe pattern is "found" from this significance of the halves' correlation
+STRIPE_Z = 4.0
+_ORIENTATIONS = {"columns": False, "rows": True}
+MIN_STRIPE = K.GATE_MIN_STRIPE
+
+
+def _energy(before: torch.Tensor, after: torch.Tensor) -> dict:
+    """Stripe energy before / after (mm^2) and the input pattern's significance, per orientation."""
+    out = {}
+    for name, transpose in _ORIENTATIONS.items():
+        b, a = (before, after) if not transpose else (before.mT, after.mT)
+        quiet = quiet_mask(b)
+        eb, ea = column_stripe_energy(b, quiet), column_stripe_energy(a, quiet)
+        n = float(eb.columns[0])
+        r = float(eb.correlation[0])
+        out[name] = {
+            "before_mm2": 1e6 * float(eb.covariance[0]),
+            "after_mm2": 1e6 * float(ea.covariance[0]),
+            "z": r * math.sqrt(n) if n > 0 and math.isfinite(r) else 0.0,
+        }
+    return out
+
+
+def _frame(before: torch.Tensor, after: torch.Tensor) -> dict:
+    valid = valid_mask(before)
+    x = torch.where(valid, before, 0.0).double()
+    noise = float(estimate_sigma(x, valid=valid).mean()) if bool(valid.any()) else 0.0
+    same = (before == after) | (before.isnan() & after.isnan())
+    return {
+        "noise_mm": 1e3 * noise,
+        "stripes": _energy(before, after),
+        "lowpass_change_mm": 1e3 * float(lowpass_change(before, after)),
+        "changed": float((~same & valid).sum()) / max(int(valid.sum()), 1),
+    }
+
+
+def _finite_mean(values: list[float]) -> float | None:
+    v = [x for x in values if math.isfinite(x)]
+    return sum(v) / len(v) if v else None
+
+
+def file_report(sets: list[FrameSet], encoded: dict, gates: list[list[float]] | None) -> dict:
+    """The record of one file (module docstring) from its frame sets as read, the encoded depth
+    arrays (by set key) and the notch gate per frame (None without a notch)."""
+    frames = []
+    for fs in sets:
+        out = FrameSet(fs.key, encoded[fs.key], fs.amplitude, fs.depth_scale, fs.shape)
+        before, _ = frame_set_tensors(fs, allow_empty=True)
+        after, _ = frame_set_tensors(out, allow_empty=True)
+        t = before.shape[0]
+        picks = sorted(
+            {round(i * (t - 1) / max(REPORT_FRAMES - 1, 1)) for i in range(REPORT_FRAMES)}
+        )
+        frames += [_frame(before[i : i + 1], after[i : i + 1]) for i in picks if i < t]
+    stripes = {}
+    for name in _ORIENTATIONS:
+        stripes[name] = {
+            k: _finite_mean([f["stripes"][name][k] for f in frames])
+            for k in ("before_mm2", "after_mm2", "z")
+        }
+    noise = _finite_mean([f["noise_mm"] for f in frames]) or 0.0
+    found = any(_found(s, noise) for s in stripes.values())
+    rec = {
+        "found": found,
+        "noise_mm": noise,
+        "stripes": stripes,
+        "lowpass_change_mm": max((f["lowpass_change_mm"] for f in frames), default=0.0),
+        "changed": _finite_mean([f["changed"] for f in frames]) or 0.0,
+        "measured_frames": len(frames),
+        "gate": None,
+    }
+    flat = [g for per_set in gates or [] for g in per_set]
+    if gates is not None and flat:
+        rec["gate"] = {"mean": sum(flat) / len(flat), "open_frames": sum(g > 0 for g in flat)}
+    return rec
+
+
+def _found(s: dict, noise_mm: float) -> bool:
+    """A significant pattern (``z >= STRIPE_Z``) of at least the gate's floor in amplitude
+    (``sqrt(E) >= GATE_MIN_STRIPE`` times the per-pixel noise)."""
+    energy = s["before_mm2"] or 0.0
+    return (s["z"] or 0.0) >= STRIPE_Z and energy > 0 and energy >= (MIN_STRIPE * noise_mm) ** 2
+
+
+def _db(before: float | None, after: float | None) -> float | None:
+    if before is None or after is None or before <= 0:
+        return None
+    return 10.0 * math.log10(before / max(after, before * 1e-6))
+
+
+def summarise(records: list[dict]) -> list[str]:
+    """Lines for the terminal from the ``done`` records of a run that carry a ``report``."""
+    reps = [r["report"] for r in records if r.get("status") == "done" and r.get("report")]
+    if not reps:
+        return []
+    changed = sum(r["changed"] > 0 for r in reps)
+    found = [r for r in reps if r["found"]]
+    lines = [
+        f"changed {changed} of {len(reps)} file(s); stripes found in {len(found)} "
+        f"(a pattern common to both halves of the frame, z >= {STRIPE_Z:g})"
+    ]
+    for name in _ORIENTATIONS:
+        gains = [
+            _db(r["stripes"][name]["before_mm2"], r["stripes"][name]["after_mm2"])
+            for r in found
+            if _found(r["stripes"][name], r["noise_mm"])
+        ]
+        gains = [g for g in gains if g is not None]
+        if gains:
+            lines.append(
+                f"{name[:-1]} stripe energy down {statistics.median(gains):.1f} dB (median over "
+                f"{len(gains)} file(s); range {min(gains):.1f} to {max(gains):.1f} dB)"
+            )
+    gated = [r["gate"] for r in reps if r["gate"] is not None]
+    if gated:
+        opened = sum(g["open_frames"] for g in gated)
+        lines.append(f"notch gate opened for {opened} frame(s)")
+    lines.append(
+        "low-pass depth moved at most "
+        f"{max(r['lowpass_change_mm'] for r in reps):.2f} mm RMS (the scene itself)"
+    )
+    if changed == 0:
+        lines.append(
+            "nothing was changed: the outputs hold the input depth "
+            + ("(no stripe found)" if not found else "(the stage did not act on the stripes)")
+        )
+    return lines

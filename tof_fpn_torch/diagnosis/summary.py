@@ -1,0 +1,104 @@
+"""The content of ``report.json``: how well a model fits, where the located statistics depart,
+and what each named effect is and explains."""
+
+from __future__ import annotations
+
+import torch
+
+from .catalogue import CATALOGUE
+from .describe import where
+from .likelihood import n_observations
+from .locate import locate
+from .model import predict
+
+__all__ = ["describe_effects", "explained", "fit_summary", "located", "report_content"]
+
+
+def fit_summary(model, obs, ctx, nll_all: float, heldout: float) -> dict:
+    """How well ``model`` fits: NLL (all pixels), held-out NLL, parameters, AIC, residual rms."""
+    with torch.no_grad():
+        p = predict(model, obs, scene=ctx.scene)
+    md, ma = ctx.mask_d, ctx.mask_a
+    rd = obs.m_d - p.mu_d
+    if p.wrap is not None:
+        rd = rd - p.wrap * torch.round(rd / p.wrap)
+    ra = (obs.m_a - p.mu_a) / p.mu_a
+    n_test = n_observations(obs, ctx, "test")
+    k = model.n_parameters()
+    return {
+        "heldout_nll": round(heldout, 3),
+        "heldout_nll_per_observation": round(heldout / max(n_test, 1), 6),
+        "nll": round(nll_all, 3),
+        "parameters": round(k, 2),
+        "aic": round(2 * k + 2 * nll_all, 3),
+        "residual_rms_depth_mm": round(float(rd[md].pow(2).mean().sqrt()) * 1e3, 4),
+        "residual_rms_amplitude_percent": round(float(ra[ma].pow(2).mean().sqrt()) * 100, 4),
+        "observations": int(n_observations(obs, ctx)),
+    }
+
+
+def located(stats: dict, replicates: int) -> list[dict]:
+    """Where each significant statistic departs (empty without a null: ``replicates`` < 0)."""
+    return [where(s) for s in locate(stats)] if replicates >= 0 else []
+
+
+def describe_effects(effects: list, model, obs, ctx, before: dict, after: dict) -> None:
+    """Each effect's fitted values in physical units (``params``) and the located statistics it
+    explains (``where``)."""
+    with torch.no_grad():
+        pred = predict(model, obs, scene=ctx.scene)
+    for e in effects:
+        e["params"] = CATALOGUE[e["name"]].describe(model, obs, pred)
+        e["where"] = explained(e["name"], before, after)
+
+
+def report_content(effects, fits, rankings, before, after, obs, ctx, replicates: int) -> dict:
+    """The ``report.json`` content (without ``seconds``)."""
+    return {
+        "effects": [
+            {k: e[k] for k in ("name", "score", "delta_aic", "params", "where")} for e in effects
+        ],
+        "verdict": [e["name"] for e in effects] or ["none"],
+        "fit": fits,
+        "located_before": located(before, replicates),
+        "located_after": located(after, replicates),
+        "unexplained": [where(s) for s in locate(after)]
+        if effects or any(s.significant for s in before.values())
+        else [],
+        "candidates": rankings,
+        "not_implemented": [n for n, e in CATALOGUE.items() if not e.implemented],
+        "recording": {
+            "frames": obs.frames,
+            "height": obs.shape[0],
+            "width": obs.shape[1],
+            "scene_estimated": obs.scene_estimated,
+            "notes": obs.notes,
+            "depth_pixels": int(ctx.mask_d.sum()),
+            "amplitude_pixels": int(ctx.mask_a.sum()),
+        },
+        "bootstrap_replicates": replicates,
+    }
+
+
+def explained(name: str, before: dict, after: dict) -> list[dict]:
+    """The located statistics this effect explains: its catalogue axes first, then any other
+    statistic that was significant before and is not any more."""
+    keys = [k for k in CATALOGUE[name].axes if k in before]
+    keys += [
+        k
+        for k, s in before.items()
+        if s.significant and k not in keys and k in after and not after[k].significant
+    ]
+    out = []
+    for k in keys[:4]:
+        b = where(before[k])
+        a = after[k]
+        b["after"] = {
+            "value": round(a.value, 3),
+            "p": a.p,
+            "excess_sigma": round(a.excess, 2),
+            "null_band_95": [round(x, 3) for x in a.band()],
+            "inside_null_band": bool(a.band()[0] <= a.value <= a.band()[1]) or a.p > 0.05,
+        }
+        out.append(b)
+    return out

@@ -1,0 +1,42 @@
+"""``impulsive_pixels``: frame-pixels with no information (random-telegraph pixels, gross read-out
+errors); every frame-pixel's likelihood becomes a mixture ``(1 - r) N_D N_A + r U_D U_A`` with
+uniform densities over the observed depth and amplitude ranges."""
+
+from __future__ import annotations
+
+from ...sim import ImpulsivePixels
+from ..params import ParamSpec
+from .base import Term, r4
+
+__all__ = ["MAX_IMPULSIVE_RATE", "ImpulsivePixelsTerm"]
+
+#: Largest share of impulsive frame-pixels the mixture may fit.
+MAX_IMPULSIVE_RATE: float = 0.5
+
+
+class ImpulsivePixelsTerm(Term):
+    """The rate ``r``; starts at 1e-4, 1e-3 and 1e-2 (at least 2 frames or 100 known pixels)."""
+
+    name = "impulsive_pixels"
+    specs = (ParamSpec("impulsive_pixels.rate", "logit", MAX_IMPULSIVE_RATE),)
+    enters = "frames"
+    sim_name = "impulsive"
+    axes = ("depth_tail|pixels", "depth_spread|pixels")
+    about = "frame-pixels with no information: a uniform component of the mixture"
+    revealed_without_scene = True
+
+    def simulator_term(self, v: dict, model):
+        return ImpulsivePixels(
+            rate=float(v["impulsive_pixels.rate"]), level=model.impulsive_level, mode="uniform"
+        )
+
+    def outlier_rate(self, v: dict):
+        return v["impulsive_pixels.rate"]
+
+    def initial_values(self, model, obs, ctx, pred) -> list[dict]:
+        if obs.frames < 2 and obs.known.sum() < 100:
+            return []
+        return [{"impulsive_pixels.rate": r} for r in (1e-4, 1e-3, 1e-2)]
+
+    def describe(self, model, obs, pred) -> dict:
+        return {"rate_percent": r4(model.values["impulsive_pixels.rate"] * 100)}

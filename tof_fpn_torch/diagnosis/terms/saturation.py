@@ -1,0 +1,100 @@
+"""``saturation``: the full-well clip of the noisy correlation samples.
+
+The camera clips each noisy sample, so the model's mean chain takes the mean and variance of the
+clip of each sample's shot and read noise (its mean bends over about one sd; the clipped part has
+no noise), and the depth and amplitude noise come from those unequal variances. A pixel whose
+samples are all clipped has no phase: its depth spread is at most that of a uniform over the
+range. The level's gradient is zero unless the clip touches some samples, so the starts are a
+dense grid of high quantiles of the largest raw sample (docs/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ... import constants as K
+from ...sim import Saturation
+from ..params import ParamSpec
+from .base import Term, r4
+
+__all__ = ["START_QUANTILES", "SaturationTerm", "peak_samples"]
+
+#: Quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
+#: which the level starts: a dense grid from the median to the 99.9th percentile, as a clip of
+#: many pixels predicts them to a fraction of their noise and the likelihood is sharp in the level.
+START_QUANTILES: tuple[float, ...] = tuple(1 - 0.5 * 0.002 ** (k / 23) for k in range(24))
+
+
+def peak_samples(model, p, depth: torch.Tensor, amp: torch.Tensor):
+    """The largest of the N raw samples (DN) of pixels with ``depth`` (m) and amplitude ``amp``
+    (DN) on the predicted offset: ``offset + A max_n cos(phi + 2 pi n / N)``."""
+    n = model.camera.n_phases
+    phi = depth * (4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR)
+    th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
+    cmax = torch.cos(phi.unsqueeze(-1) + th).amax(-1)
+    return p.offset + amp * cmax
+
+
+class SaturationTerm(Term):
+    """The full-well level (e-)."""
+
+    name = "saturation"
+    specs = (ParamSpec("saturation.level", "log", 1.0, "e-", charge=True),)
+    enters = "chain"
+    sim_name = "saturation"
+    axes = ("amp_mean|raw", "depth_mean|raw")
+    about = (
+        "full-well clip of the noisy correlation samples (mean and variance of the clip of "
+        "each sample's shot and read noise)"
+    )
+    slow = True
+    restarts_from_robust_values = True
+
+    def simulator_term(self, v: dict, model):
+        return Saturation(v["saturation.level"])
+
+    def apply_mean(self, state, v: dict, model, chain):
+        t = self.simulator_term(v, model)
+        var_e = state.samples.clamp_min(0) + v["camera.read_noise"] ** 2
+        state.samples, chain.sample_var = t.noisy_moments(state.samples, var_e)
+        return state
+
+    def depth_variance_limit(self, r_cam: float):
+        return r_cam**2 / 12.0
+
+    def initial_values(self, model, obs, ctx, pred) -> list[dict]:
+        # the clip must touch some samples at the start, or the level's gradient is zero: levels
+        # at high quantiles of the largest predicted raw sample and of the largest sample that
+        # the observed amplitude and depth imply (a clipped pixel reads a smaller amplitude)
+        g = model.values["camera.conversion_gain"]
+        out = []
+        for peaks in (
+            peak_samples(model, pred, pred.mu_d, pred.a0),
+            peak_samples(model, pred, obs.m_d, obs.m_a),
+        ):
+            pk = (peaks * g)[ctx.mask_a & torch.isfinite(peaks)]
+            if pk.numel():
+                out += [{"saturation.level": float(torch.quantile(pk, q))} for q in START_QUANTILES]
+        return out
+
+    def describe(self, model, obs, pred) -> dict:
+        from ..model import predict  # late: the model imports the catalogue
+
+        v = model.values
+        g = v["camera.conversion_gain"]
+        lv = v["saturation.level"]
+        # the largest raw sample the model predicts without the clip
+        with torch.no_grad():
+            p0 = predict(model.without(self.name), obs)
+        peak = peak_samples(model, p0, p0.mu_d, p0.a0)[obs.known] * g
+        # the chance that a pixel's largest sample, with its shot and read noise, is clipped in
+        # a frame, averaged over the pixels
+        sd = torch.sqrt(peak.clamp_min(0) + v["camera.read_noise"] ** 2)
+        clipped = torch.special.ndtr((peak - lv) / sd)
+        return {
+            "level_e": r4(lv),
+            "level_amplitude_units": r4(lv / g),
+            "share_of_pixels_clipped": r4(float(clipped.double().mean())),
+        }
