@@ -26,7 +26,7 @@ from torch.nn.utils import parametrize
 
 from ._checks import check_image, check_taps, check_tensor_type, normalize_dims
 from .fir import BORDER_MODES, fir_last, fir_operators
-from .holes import certified, holed_exact, holed_lines, outlier_ratio, tap_gains
+from .holes import certified, holed_exact, holed_lines, tap_gains
 from .validity import all_valid, valid_mask, valid_range
 
 __all__ = ["FPNFilter", "fpn_filter"]
@@ -62,6 +62,11 @@ def _unlines(t: torch.Tensor, shape: list[int], d: int) -> torch.Tensor:
     return t.view(shape[0], shape[1], shape[3], shape[2]).transpose(-1, -2).contiguous()
 
 
+def _per_image(shape: list[int], d: int) -> int:
+    """Lines per image of :func:`_lines` (rows for ``d = -1``, columns for ``-2``)."""
+    return shape[-2] if d == -1 else shape[-1]
+
+
 def _fpn_filter(
     x: torch.Tensor,
     mask: torch.Tensor | None,
@@ -88,7 +93,7 @@ def _fpn_filter(
     y = work
     for i, d in enumerate(dims):
         r = rng
-        if r is not None and r[1] < outlier_ratio() * r[0]:  # all valid, no outlier: plain FIR
+        if r is not None and r[0] > 0:  # all valid (so no outlier: they sit by holes): plain FIR
             prev = y
             y = _along(y, taps, d, border, taps_ops, fast)
             if not certified(r[0], r[1], gains, border):  # ringing past 0 at a steep step
@@ -99,10 +104,14 @@ def _fpn_filter(
         if fast:
             top = 0.0 if r is None else r[1]
             v2 = None if valid is None else _lines(valid, d)
-            y2 = holed_lines(_lines(y, d), v2, taps, border, taps_ops, gains, top)
+            y2 = holed_lines(
+                _lines(y, d), v2, taps, border, taps_ops, gains, top, _per_image(shape, d)
+            )
         else:
             vm = valid if valid is not None else valid_mask(y)
-            y2 = holed_exact(_lines(y, d), _lines(vm, d), taps, border, taps_ops, fast)
+            y2 = holed_exact(
+                _lines(y, d), _lines(vm, d), taps, border, taps_ops, fast, _per_image(shape, d)
+            )
         y = _unlines(y2, shape, d)
         if r is not None and i + 1 < len(dims):
             rng = valid_range(y, fast)

@@ -6,9 +6,13 @@ line (a row for ``dim=-1``, a column for ``dim=-2``):
 1. **Usable pixels** are the valid ones (:func:`~tof_fpn_torch.runtime.valid_mask` and the
    caller's ``mask``) that are not **isolated outliers**: a valid pixel more than
    :func:`outlier_ratio` (3) times as far as each valid neighbour at distance 1 on the line, or
-   less than a third as far as each of them (a 3.6 m return on a 0.35 m wall). A pixel without a
-   valid neighbour there is not an outlier. The rule is scale-free (metres or millimetres give the
-   same pixels), and a line whose valid depths stay within a factor 3 has none.
+   less than a third as far as each of them (a 3.6 m return on a 0.35 m wall), **next to an
+   invalid pixel** (in its 3 x 3 neighbourhood: where a camera's own invalidation leaves stray
+   returns, such as flying pixels at the edge of a hole) and alone there (a thin object, a bar one
+   pixel wide or a spoke, is a run of such pixels across the lines, and is filtered as the scene
+   it is). Away from holes nothing is an outlier: a frame without invalid pixels is filtered as
+   a plain FIR. A pixel without a valid neighbour on the line is not an outlier either. The rule
+   is scale-free (metres or millimetres give the same pixels).
 2. **The output at a usable pixel** ``n`` is the filter applied to the line in which every pixel
    that is not usable is replaced by ``x_n``, the pixel's own depth:
 
@@ -42,6 +46,7 @@ noise), it is exact on constant depth, and its bound stays within the filter's s
 from __future__ import annotations
 
 import torch
+from torch.nn import functional as F
 
 from .fir import _phases, fir_last, fir_operators, fir_polyphase
 from .validity import valid_mask
@@ -67,14 +72,19 @@ def _pad1(t: torch.Tensor) -> torch.Tensor:
     return torch.cat([z, t, z], 1)
 
 
-def isolated_outliers(x0: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+def isolated_outliers(x0: torch.Tensor, v: torch.Tensor, lines: int = 0) -> torch.Tensor:
     """Step 1's outliers: (R, W) bool, True where a valid pixel is more than :func:`outlier_ratio`
     times as far as each valid neighbour at distance 1 along the last axis, or less than its
-    inverse times as far as each.
+    inverse times as far as each, next to an invalid pixel (in its 3 x 3 neighbourhood of the
+    image; without ``lines``, on the line), and alone: no other pixel of that neighbourhood is
+    such a pixel (a thin object, a bar 1 px wide or a spoke, is a run of them across the lines,
+    filtered as the scene it is).
 
     Args:
         x0: (R, W) depth, 0 where invalid (no NaN / inf).
         v: (R, W) 1.0 where valid, 0.0 elsewhere.
+        lines: lines per image (the rows of ``x0`` are ``R / lines`` images of ``lines`` lines
+            each); 0: lines are not neighbours (each is tested alone).
     """
     xp = _pad1(x0)
     far = torch.maximum(xp[:, :-2], xp[:, 2:])  # deepest valid neighbour (0: none)
@@ -84,7 +94,15 @@ def isolated_outliers(x0: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     ratio = outlier_ratio()
     deep = (x0 > ratio * far) & (far > 0)
     shallow = (inv > ratio * near) & (near > 0)
-    return deep | shallow
+    odd = deep | shallow
+    r, w = odd.shape[0], odd.shape[1]
+    if lines > 0 and r % lines == 0:
+        f = odd.to(x0.dtype).view(r // lines, 1, lines, w)
+        others = F.avg_pool2d(f, 3, 1, 1, False, True) * 9.0 - f  # the others flagged in 3 x 3
+        hole = F.max_pool2d((1.0 - v).view(r // lines, 1, lines, w), 3, 1, 1)  # invalid in 3 x 3
+        return odd & (others.view(r, w) < 0.5) & (hole.view(r, w) > 0.5)
+    vp = _pad1(v) + torch.cat([v[:, :1], v.new_zeros(r, w), v[:, -1:]], 1)  # borders: valid
+    return odd & (torch.minimum(vp[:, :-2], vp[:, 2:]) < 0.5)  # an invalid neighbour on the line
 
 
 def certified(lo: float, hi: float, gains: tuple[float, float], border: str) -> bool:
@@ -116,11 +134,13 @@ def holed_lines(
     ops: list[torch.Tensor],
     gains: tuple[float, float],
     top: float,
+    lines: int = 0,
 ) -> torch.Tensor:
     """Inference: the rule on (R, W) lines, in chunks of :func:`_chunk_samples` (their temporaries
     stay in the cache). ``valid2``: the valid pixels, or None when they are all the others than the
-    +0.0 ones (maybe all), ``top`` then the largest depth. Outliers are searched only in chunks
-    whose valid depths span more than a factor 3 (elsewhere there can be none)."""
+    +0.0 ones (maybe all), ``top`` then the largest depth; ``lines``: lines per image (for the
+    outliers' neighbourhood). Outliers are searched only when the valid depths span more than a
+    factor 3 (elsewhere there can be none), over all lines at once (they look across lines)."""
     r, w = x2.shape[0], x2.shape[1]
     out = torch.empty_like(x2)
     rows = max(1, _chunk_samples() // w)
@@ -131,6 +151,12 @@ def holed_lines(
     g = taps.flip(0).to(device=x2.device, dtype=x2.dtype)
     if direct and len(ops) == 0:
         ops = fir_operators(taps, border)
+    vall = (x2 > 0) if valid2 is None else valid2
+    x0all = torch.where(vall, x2, torch.zeros_like(x2))
+    vmin = torch.where(vall, x2, torch.full_like(x2, float("inf"))).amin()
+    odd_all = torch.zeros_like(vall)
+    if bool(vall.any()) and not bool(x0all.amax() < outlier_ratio() * vmin):
+        odd_all = isolated_outliers(x0all, vall.to(x2.dtype), lines)
     for r0 in range(0, r, rows):
         r1 = min(r, r0 + rows)
         xc = x2[r0:r1]
@@ -145,13 +171,11 @@ def holed_lines(
         else:
             x0.copy_(xc)
             torch.le(xc, 0.0, out=u)
+        odd = odd_all[r0:r1]
+        if bool(odd.any()):
+            u.masked_fill_(odd, 1.0)
+            x0.masked_fill_(odd, 0.0)
         lo, hi = torch.aminmax(torch.addcmul(x0, u, torch.full_like(x0[:1, :1], peak)))
-        if not bool(hi < outlier_ratio() * lo):
-            odd = isolated_outliers(x0, 1.0 - u)
-            if bool(odd.any()):
-                u.masked_fill_(odd, 1.0)
-                x0.masked_fill_(odd, 0.0)
-                lo, hi = torch.aminmax(torch.addcmul(x0, u, torch.full_like(x0[:1, :1], peak)))
         if direct and 2 * (r1 - r0) * w >= 2 * _phases():
             y2 = fir_polyphase(both.view(-1, w), g, border, ops)
         else:
@@ -174,10 +198,11 @@ def holed_exact(
     border: str,
     ops: list[torch.Tensor],
     fast: bool,
+    lines: int = 0,
 ) -> torch.Tensor:
     """The same rule branch-free and out of place (tracing for export, autograd)."""
     x0 = torch.where(valid2, x2, torch.zeros_like(x2))
-    usable = valid2 & ~isolated_outliers(x0, valid2.to(x2.dtype))
+    usable = valid2 & ~isolated_outliers(x0, valid2.to(x2.dtype), lines)
     u = (~usable).to(x2.dtype)
     x0 = torch.where(usable, x0, torch.zeros_like(x0))
     y = fir_last(x0, taps, border, ops, fast) + fir_last(u, taps, border, ops, fast) * x0
