@@ -317,3 +317,31 @@ def test_the_function_length_check_sees_one(tmp_path):
         f'    be split (one fused loop)."""\n{body}\n\ndef short():\n    return 1\n'
     )
     assert _long_functions(probe, tmp_path) == {"probe.py::long": MAX_FUNCTION_LINES + 1}
+
+
+def _imported_roots(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            out.add(node.module.split(".")[0])
+    return out
+
+
+def test_the_lab_and_the_tests_stay_apart():
+    """tests/ never imports the lab beside the package (benchmarks/, examples/: their modules
+    have their own tests there); the lab never imports tests/ nor edits sys.path."""
+    root = PACKAGE.parent
+    lab_dirs = (root / "benchmarks", root / "examples")
+    lab = {p.stem for d in lab_dirs for p in d.glob("*.py")} | {"paper"}
+    for path in (root / "tests").glob("*.py"):
+        assert not (_imported_roots(path) & lab), (path.name, _imported_roots(path) & lab)
+    for d in lab_dirs:
+        for path in d.rglob("*.py"):
+            if "tests" in path.relative_to(d).parts:
+                continue
+            text = path.read_text()
+            assert "sys.path" not in text, path
+            assert not (_imported_roots(path) & {"tests", "conftest"}), path
