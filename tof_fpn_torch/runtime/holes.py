@@ -139,8 +139,8 @@ def holed_lines(
     """Inference: the rule on (R, W) lines, in chunks of :func:`_chunk_samples` (their temporaries
     stay in the cache). ``valid2``: the valid pixels, or None when they are all the others than the
     +0.0 ones (maybe all), ``top`` then the largest depth; ``lines``: lines per image (for the
-    outliers' neighbourhood). Outliers are searched only when the valid depths span more than a
-    factor 3 (elsewhere there can be none), over all lines at once (they look across lines)."""
+    outliers' neighbourhood). Outliers are searched only when a chunk's depths span more than a
+    factor 3 (elsewhere there can be none), then over all lines at once (they look across lines)."""
     r, w = x2.shape[0], x2.shape[1]
     out = torch.empty_like(x2)
     rows = max(1, _chunk_samples() // w)
@@ -151,12 +151,7 @@ def holed_lines(
     g = taps.flip(0).to(device=x2.device, dtype=x2.dtype)
     if direct and len(ops) == 0:
         ops = fir_operators(taps, border)
-    vall = (x2 > 0) if valid2 is None else valid2
-    x0all = torch.where(vall, x2, torch.zeros_like(x2))
-    vmin = torch.where(vall, x2, torch.full_like(x2, float("inf"))).amin()
-    odd_all = torch.zeros_like(vall)
-    if bool(vall.any()) and not bool(x0all.amax() < outlier_ratio() * vmin):
-        odd_all = isolated_outliers(x0all, vall.to(x2.dtype), lines)
+    odd_all: torch.Tensor | None = None  # the outliers of every line, found when first needed
     for r0 in range(0, r, rows):
         r1 = min(r, r0 + rows)
         xc = x2[r0:r1]
@@ -171,11 +166,17 @@ def holed_lines(
         else:
             x0.copy_(xc)
             torch.le(xc, 0.0, out=u)
-        odd = odd_all[r0:r1]
-        if bool(odd.any()):
-            u.masked_fill_(odd, 1.0)
-            x0.masked_fill_(odd, 0.0)
         lo, hi = torch.aminmax(torch.addcmul(x0, u, torch.full_like(x0[:1, :1], peak)))
+        if not bool(hi < outlier_ratio() * lo):  # else no line of the chunk can hold an outlier
+            if odd_all is None:  # they look across lines, maybe into other chunks: all at once
+                vall = (x2 > 0) if valid2 is None else valid2
+                x0all = torch.where(vall, x2, torch.zeros_like(x2))
+                odd_all = isolated_outliers(x0all, vall.to(x2.dtype), lines)
+            odd = odd_all[r0:r1]
+            if bool(odd.any()):
+                u.masked_fill_(odd, 1.0)
+                x0.masked_fill_(odd, 0.0)
+                lo, hi = torch.aminmax(torch.addcmul(x0, u, torch.full_like(x0[:1, :1], peak)))
         if direct and 2 * (r1 - r0) * w >= 2 * _phases():
             y2 = fir_polyphase(both.view(-1, w), g, border, ops)
         else:
