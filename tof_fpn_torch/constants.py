@@ -65,6 +65,15 @@ GATE_MIN_STRIPE: float = 0.1
 #: Largest false-alarm probability of a reported periodic stripe (whole searched band).
 DETECTION_FALSE_ALARM: float = 0.01
 
+# --- the temporal filter of recordings (runtime/temporal.py; beyond the paper) -----------------
+#: EMA weight of the new frame once the average has settled (noise sd x 0.33 without restarts).
+TEMPORAL_ALPHA: float = 0.2
+#: Motion guard, standard deviations of the innovation: a pixel restarts beyond it (0.27 % of
+#: static frames on Gaussian noise).
+TEMPORAL_GUARD: float = 3.0
+#: Depth noise standard deviation the guard assumes without a noise law, metres.
+TEMPORAL_SIGMA: float = 0.005
+
 # --- the depth-domain FPN model (eq. 10, reconstructed; Sec. IV-B) -----------------------------
 FPN_ALPHA: float = -3.966
 FPN_BETA: float = 0.012

@@ -14,6 +14,8 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.destripe`: :func:`destripe`, :class:`Destripe` (broadband column / row offsets, one frame).
 - :mod:`.fixed_pattern`: :class:`FixedPatternCorrection` (a calibrated fixed pattern, as buffers).
 - :mod:`.complex_pattern`: :class:`ComplexPatternCorrection` (a calibrated complex-domain pattern).
+- :mod:`.temporal`: :func:`temporal_filter`, :class:`TemporalFilter` (recordings: a causal
+  recursive filter with a motion guard, its state passed in and out).
 """
 
 from .complex_pattern import ComplexPatternCorrection
@@ -22,6 +24,7 @@ from .fixed_pattern import FixedPatternCorrection
 from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
 from .suppression import FPNSuppression
+from .temporal import TemporalFilter, promised_noise_factor, temporal_filter, temporal_state
 from .trainable import KeepZeros, TrainableFusion, freeze, keep_zeros
 from .validity import all_valid, valid_mask
 
@@ -32,11 +35,15 @@ __all__ = [
     "FPNFilter",
     "FPNSuppression",
     "FixedPatternCorrection",
+    "TemporalFilter",
     "all_valid",
     "amplitude_fusion",
     "amplitude_weight",
     "destripe",
     "fpn_filter",
+    "promised_noise_factor",
+    "temporal_filter",
+    "temporal_state",
     "valid_mask",
     "KeepZeros",
     "TrainableFusion",
