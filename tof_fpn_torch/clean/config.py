@@ -16,6 +16,7 @@ the defaults shown)::
                           #   (default: data with notch = data, camera with design, else off)
     denoise = "none"      # none or a denoiser of tof_fpn_torch.clean.DENOISERS (nlm, bm3d, ...)
     pattern = "wall.npz"  # a fixed pattern from tof-fpn calibrate, removed first (default: none)
+    temporal = false      # the temporal filter over the frames of each multi-frame file, last
 
     [notch]
     order = 20            # filter order
@@ -27,6 +28,11 @@ the defaults shown)::
                           #   (default: the camera the files say they come from, else camcube)
     low = 70.0            # fusion = manual: the thresholds, in the camera's amplitude units
     high = 350.0
+
+    [temporal]            # tof_fpn_torch.runtime.TemporalFilter (clean/temporal.py)
+    alpha = 0.2           # EMA weight of the new frame
+    guard = 3.0           # motion guard, sd of the innovation
+    persistence = 0       # frames an invalid pixel shows its last estimate
 
     [calibration]
     frames = 8            # frames (the first in file order) that the data-driven stages measure
@@ -110,10 +116,13 @@ PRESETS: dict[str, dict[str, str]] = {
 }
 #: TOML table -> {key: CleanConfig field}
 _TABLES: dict[str, dict[str, str]] = {
-    "pipeline": {k: k for k in ("stage", "destripe", "notch", "fusion", "denoise", "pattern")},
+    "pipeline": {
+        k: k for k in ("stage", "destripe", "notch", "fusion", "denoise", "pattern", "temporal")
+    },
     "notch": {"order": "order", "rho": "rho", "gate": "gate"},
     "fusion": {"camera": "camera", "low": "low", "high": "high"},
     "calibration": {"frames": "calibration_frames"},
+    "temporal": {k: f"temporal_{k}" for k in ("alpha", "guard", "persistence")},
     "files": {
         k: k for k in ("batch", "depth_scale", "height", "width", "rounding", "output_scale")
     },
@@ -146,6 +155,8 @@ class CleanConfig:
         height, width: pixels of raw ``.bin`` / ``.raw`` frames.
         rounding: integer outputs: ``"dither"`` or ``"nearest"`` (module docstring).
         output_scale: integer outputs: metres per stored unit, or None (the input's).
+        temporal: the temporal filter over the frames of each multi-frame file (off by default).
+        temporal_alpha, temporal_guard, temporal_persistence: its settings.
     """
 
     stage: str = "auto"
@@ -168,6 +179,10 @@ class CleanConfig:
     width: int | None = None
     rounding: str = "dither"
     output_scale: float | None = None
+    temporal: bool = False
+    temporal_alpha: float = K.TEMPORAL_ALPHA
+    temporal_guard: float = K.TEMPORAL_GUARD
+    temporal_persistence: int = 0
 
     def __post_init__(self) -> None:
         if self.stage not in CHOICES["stage"]:
@@ -211,8 +226,10 @@ class CleanConfig:
                 "fusion = 'manual' needs low and high (amplitude units of the camera), got "
                 f"low={self.low!r}, high={self.high!r}"
             )
-        if not isinstance(self.gate, bool):
-            raise ValueError(f"gate must be true or false, got {self.gate!r}")
+        for name in ("gate", "temporal"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        _temporal_settings(self)
         if not isinstance(self.denoise_options, dict):
             raise ValueError(f"denoise_options must be a table, got {self.denoise_options!r}")
 
@@ -231,6 +248,19 @@ class CleanConfig:
     def identity(self) -> str:
         """What decides the output bytes (everything here): two runs into one OUTPUT must agree."""
         return config_to_toml(self, version=False)
+
+
+def _temporal_settings(config: CleanConfig) -> None:
+    """The ``[temporal]`` settings, checked as the filter checks them (floats and an int)."""
+    for name in ("temporal_alpha", "temporal_guard"):
+        v = getattr(config, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"{name} must be a number, got {v!r}")
+        setattr(config, name, float(v))
+    _int("temporal_persistence", config.temporal_persistence, 0)
+    from .temporal import temporal_module
+
+    temporal_module(config.temporal_alpha, config.temporal_guard, config.temporal_persistence)
 
 
 def _int(name: str, v, lo: int) -> None:

@@ -1,7 +1,9 @@
 """The torch side of ``tof-fpn clean``: the stages a :class:`CleanConfig` asks for, as one module.
 
 Order (each stage optional): the FPN stage (:class:`~tof_fpn_torch.runtime.FPNSuppression`: notch
-filter, eq. (11) fusion, stripe gate, then the broadband destriper), then a denoiser. Denoisers come
+filter, eq. (11) fusion, stripe gate, then the broadband destriper), then a denoiser, then (over
+the frames of each multi-frame file, by :mod:`.temporal`, not in :meth:`CleanPipeline.forward`)
+the temporal filter. Denoisers come
 from the one registry, :data:`tof_fpn_torch.denoise.DENOISERS` (re-exported here as
 :data:`DENOISERS`: nlm, bm3d, sdct, hypbi, lpa-ici, bilateral, joint-bilateral, guided, and the
 registry's aliases); :func:`register_denoiser` (:func:`tof_fpn_torch.denoise.register`) adds one,
@@ -33,6 +35,7 @@ from ..build import (
 from ..runtime import Destripe, FPNSuppression
 from .config import CleanConfig
 from .pattern import load_pattern
+from .temporal import temporal_module
 
 __all__ = [
     "DENOISERS",
@@ -88,6 +91,7 @@ class CleanPipeline(nn.Module):
         self.fpn = fpn
         self.denoiser = denoiser
         self.calibration: dict | None = None  # what a data-driven stage was measured on
+        self.temporal: nn.Module | None = None  # run per frame set after forward (.temporal)
 
     def gates(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor | None:
         """(B,) the notch stage's gate per frame (None without a notch filter), for the record."""
@@ -207,6 +211,10 @@ def build_pipeline(
         fpn = None  # measured: nothing to do
     denoiser = make_denoiser(config.denoise, config.denoise_options)
     pipeline = CleanPipeline(fpn, denoiser, pattern)
+    if config.temporal:
+        pipeline.temporal = temporal_module(
+            config.temporal_alpha, config.temporal_guard, config.temporal_persistence
+        )
     if cache:
         c = cache[0]
         pipeline.calibration = {"frames": int(c.depth.shape[0]), "camera": c.camera}
@@ -240,6 +248,10 @@ def describe(pipeline: CleanPipeline) -> dict:
         out["denoise"] = f"{type(pipeline.denoiser).__name__}({pipeline.denoiser.extra_repr()})"
     out["calibration"] = pipeline.calibration
     out["pattern"] = None if pipeline.pattern is None else type(pipeline.pattern).__name__
+    t = pipeline.temporal
+    out["temporal"] = None if t is None else {
+        "alpha": t.alpha, "guard": t.guard, "persistence": t.persistence
+    }  # fmt: skip
     return out
 
 
@@ -264,6 +276,12 @@ def stage_line(info: dict, stage: str) -> str:
         parts.append(f"destripe {info['destripe']}")
     if info.get("denoise") is not None:
         parts.append(f"denoise {info['denoise']}")
+    if info.get("temporal") is not None:
+        t = info["temporal"]
+        parts.append(
+            f"temporal (alpha {t['alpha']:g}, guard {t['guard']:g}, persistence "
+            f"{t['persistence']}) over the frames of each multi-frame file"
+        )
     calib = info.get("calibration")
     source = ""
     if calib is not None:

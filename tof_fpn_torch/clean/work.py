@@ -32,6 +32,7 @@ from .config import CleanConfig
 from .manifest import input_identity, now
 from .measure import file_report
 from .plan import Job, temporary
+from .temporal import apply_temporal
 
 __all__ = ["Loaded", "compute_group", "load_group", "read_jobs", "reason", "write_group"]
 
@@ -46,6 +47,7 @@ class Loaded:
     tensors: list[tuple[torch.Tensor, torch.Tensor]] | None = None
     cleaned: list[torch.Tensor] | None = None
     gates: list[list[float]] | None = None
+    temporal: list[dict] | None = None
     empty: int = 0
     identity: dict | None = None
     error: str | None = None
@@ -158,10 +160,26 @@ def compute_group(
                 frames = sorted(parts.get((id(item), s), []), key=lambda p: p[0])
                 item.cleaned[s] = torch.cat([t for _, t in frames])
                 item.gates[s] = [g for _, g in sorted(item.gates[s])]
+            _temporal(getattr(pipeline, "temporal", None), item)
         if item.error is not None:
             item.cleaned = None
         item.tensors = None  # not needed any more (and not to be pickled back)
     return group
+
+
+def _temporal(settings, item: Loaded) -> None:
+    """The temporal filter over each frame set of ``item`` in order (:mod:`.temporal`)."""
+    if settings is None:
+        return
+    item.temporal = []
+    try:
+        for s, (fs, (_, amplitude)) in enumerate(zip(item.sets, item.tensors, strict=True)):
+            item.cleaned[s], rec = apply_temporal(
+                settings, item.cleaned[s], amplitude, fs.timestamps_s
+            )
+            item.temporal.append(rec)
+    except Exception as exc:  # noqa: BLE001 -- recorded for the file
+        item.error = f"temporal failed: {reason(exc)}"
 
 
 def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
@@ -218,6 +236,8 @@ def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig)
                 rec["report"] = res["report"]
             if item.empty:
                 rec["empty_frames"] = item.empty  # no valid pixel: written as they came
+            if item.temporal is not None:
+                rec["temporal"] = item.temporal  # per frame set: applied, or why not
         if item.error is None:
             rec.update(
                 status="done",

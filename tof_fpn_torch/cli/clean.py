@@ -88,6 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--low", type=float_arg(0.0), help="--fusion manual: low threshold")
     g.add_argument("--high", type=float_arg(0.0, open_lo=True), help="--fusion manual: high")
     g.add_argument("--calibration-frames", type=int_arg(1), help="frames measured by data stages")
+    g.add_argument("--temporal", action="store_true", help="filter each recording over time")
     f = p.add_argument_group("files and execution")
     f.add_argument("--batch", type=int_arg(1), help="files per group, frames per batch")
     f.add_argument("--depth-scale", type=float_arg(0.0, open_lo=True), help="metres per unit")
@@ -146,6 +147,7 @@ def config_from_args(args: argparse.Namespace) -> CleanConfig:
         width=args.width,
         rounding=args.rounding,
         output_scale=args.output_scale,
+        temporal=True if args.temporal else None,
     )
 
 
