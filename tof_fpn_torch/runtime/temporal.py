@@ -244,7 +244,11 @@ class TemporalFilter(nn.Module):
     r"""The temporal filter as a module: ``forward(depth, state, amplitude=None) -> (out, state)``.
 
     Args:
-        alpha, guard, sigma, noise_k, persistence: as in :func:`temporal_filter`.
+        alpha: EMA weight of the new frame in (0, 1].
+        guard: motion guard in standard deviations of the innovation (``math.inf``: none).
+        sigma: noise standard deviation floor, depth units.
+        noise_k: ``k`` of the noise law ``k / A`` (0: not used).
+        persistence: frames an invalid pixel shows its last estimate (0: none).
 
     Shape:
         - depth: (B, C, H, W) float; state: (B, 3 C, H, W) (:meth:`initial_state`); amplitude:
