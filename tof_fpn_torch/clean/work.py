@@ -172,6 +172,7 @@ def _temporal(settings, item: Loaded) -> None:
     if settings is None:
         return
     item.temporal = []
+    t0 = time.perf_counter()
     try:
         for s, (fs, (_, amplitude)) in enumerate(zip(item.sets, item.tensors, strict=True)):
             item.cleaned[s], rec = apply_temporal(
@@ -180,6 +181,7 @@ def _temporal(settings, item: Loaded) -> None:
             item.temporal.append(rec)
     except Exception as exc:  # noqa: BLE001 -- recorded for the file
         item.error = f"temporal failed: {reason(exc)}"
+    item.seconds["compute"] += time.perf_counter() - t0
 
 
 def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
