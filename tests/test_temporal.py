@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from tof_fpn_torch.export import export_onnx
 from tof_fpn_torch.runtime import (
     TemporalFilter,
     promised_noise_factor,
@@ -95,34 +96,28 @@ def test_torchscript_equals_eager_over_a_sequence():
 
 
 def test_onnx_export_equals_eager_over_a_sequence(tmp_path):
+    """export_onnx traces on its default (2, 1, 64, 80) inputs with dynamic shapes; the graph
+    then runs a (1, 1, 16, 20) recording with the state fed back, equal to eager."""
+    import onnx
     import onnxruntime as ort
 
     d, a = _recording(dtype=torch.float32, h=16, w=20)
     f = TemporalFilter(**{**SETTINGS, "noise_k": 0.5}).eval()
-    state = temporal_state(d[:1])
-    path = tmp_path / "temporal.onnx"
-    torch.onnx.export(
-        f,
-        (d[:1], state, a[:1]),
-        str(path),
-        input_names=["depth", "state", "amplitude"],
-        output_names=["output", "new_state"],
-        opset_version=18,
-        dynamo=True,
-        external_data=False,
-    )
+    path = export_onnx(f, tmp_path / "temporal.onnx")
+    graph = onnx.load(str(path)).graph
+    assert [i.name for i in graph.input] == ["depth", "state", "amplitude"]
+    assert [o.name for o in graph.output] == ["output", "new_state"]
     sess = ort.InferenceSession(str(path))
-    st = state.numpy()
+    st = temporal_state(d[:1]).numpy()
     outs = []
     for k in range(d.shape[0]):
-        out, st = sess.run(
-            None, {"depth": d[k : k + 1].numpy(), "state": st, "amplitude": a[k : k + 1].numpy()}
-        )
+        feed = {"depth": d[k : k + 1].numpy(), "state": st, "amplitude": a[k : k + 1].numpy()}
+        out, st = sess.run(None, feed)
         outs.append(out)
     out_e, st_e = _run(f, d, a)
-    np.testing.assert_allclose(np.concatenate(outs), out_e.numpy(), rtol=0, atol=1e-5)
-    np.testing.assert_allclose(st, st_e.numpy(), rtol=0, atol=1e-5)
     got = np.concatenate(outs)
+    np.testing.assert_allclose(got, out_e.numpy(), rtol=0, atol=1e-5)
+    np.testing.assert_allclose(st, st_e.numpy(), rtol=0, atol=1e-5)
     assert got[5, 0, 0, 0] == 0 and got[4, 0, 0, 0] > 1  # held for 2 frames, then invalid again
 
 

@@ -96,25 +96,31 @@ def _check_onnx_exportable(module: nn.Module) -> None:
 
 
 def _input_names(model: nn.Module) -> list[str]:
-    """The graph's inputs: ``x`` of an :class:`FPNFilter`, else ``depth`` and, when the module
-    needs one (``needs_amplitude``, True when it does not say), ``amplitude``."""
+    """The graph's inputs: ``x`` of an :class:`FPNFilter`, the module's ``onnx_inputs`` where it
+    names them (a stateful module: ``depth, state, amplitude``), else ``depth`` and, when the
+    module needs one (``needs_amplitude``, True when it does not say), ``amplitude``."""
     if isinstance(model, FPNFilter):
         return ["x"]
+    if getattr(model, "onnx_inputs", None):
+        return list(model.onnx_inputs)
     if getattr(model, "needs_amplitude", True):
         return ["depth", "amplitude"]
     return ["depth"]
 
 
-def _default_inputs(names: list[str]) -> tuple[torch.Tensor, ...]:
+def _default_inputs(names: list[str], model: nn.Module) -> tuple[torch.Tensor, ...]:
     """(2, 1, 64, 80) float32 example inputs, seeded: depth in [0.5, 1.5), amplitude in
-    [0.5, LOW_SENSING_THRESHOLD + 0.5)."""
+    [0.5, LOW_SENSING_THRESHOLD + 0.5); a ``state`` is the module's ``initial_state(depth)``."""
     gen = torch.Generator().manual_seed(0)
-    return tuple(
+    out = [
         torch.rand(2, 1, 64, 80, generator=gen)
         * (K.LOW_SENSING_THRESHOLD if n == "amplitude" else 1.0)
         + 0.5
         for n in names
-    )
+    ]
+    if "state" in names:
+        out[names.index("state")] = model.initial_state(out[0])
+    return tuple(out)
 
 
 def export_onnx(
@@ -129,7 +135,9 @@ def export_onnx(
 
     Args:
         module: e.g. :class:`FPNSuppression` (inputs ``depth, amplitude``, or ``depth`` alone when
-            its ``needs_amplitude`` is False) or :class:`FPNFilter` (input ``x``).
+            its ``needs_amplitude`` is False), :class:`FPNFilter` (input ``x``) or a stateful
+            :class:`~tof_fpn_torch.runtime.TemporalFilter` (inputs ``depth, state, amplitude``,
+            outputs ``output, new_state``).
         example_inputs: tensors to trace with; default (2, 1, 64, 80) float32 (one per input).
         opset: ONNX opset, >= 17.
         dynamic: dynamic batch, height and width (each >= 2).
@@ -147,7 +155,7 @@ def export_onnx(
     model = freeze(copy.deepcopy(module)).eval()
     names = _input_names(model)
     if example_inputs is None:
-        example_inputs = _default_inputs(names)
+        example_inputs = _default_inputs(names, model)
     if len(example_inputs) != len(names):
         raise ValueError(
             f"example_inputs must hold {len(names)} tensor(s) {names}, got {len(example_inputs)}"
@@ -165,7 +173,7 @@ def export_onnx(
         tuple(example_inputs),
         str(path),
         input_names=names,
-        output_names=["output"],
+        output_names=list(getattr(model, "onnx_outputs", None) or ["output"]),
         opset_version=opset,
         dynamo=True,
         dynamic_shapes=dynamic_shapes,

@@ -270,6 +270,9 @@ class TemporalFilter(nn.Module):
     sigma: float
     noise_k: float
     persistence: int
+    #: the graph's inputs and outputs for :func:`tof_fpn_torch.export.export_onnx`
+    onnx_inputs = ("depth", "state", "amplitude")
+    onnx_outputs = ("output", "new_state")
 
     def __init__(
         self,
