@@ -1,8 +1,8 @@
 """The temporal filter on simulated recordings with a moving object, against the plain EMA and a
 NumPy reimplementation of librealsense's temporal filter, and its speed per 424 x 512 frame.
 
-Recording (``tof_fpn_torch.sim``, the default raw chain without impulsive pixels, so the noise is
-the shot and read noise the promise is about; ``--impulsive`` keeps them): a textured wall at 3 m
+Recording (``tof_fpn_torch.sim``, the default raw chain: shot and read noise, read-out FPN, ADC;
+its impulsive-pixel rate is 0): a textured wall at 3 m
 and a 40 x 30 px board at 1.5 m that stands still for 40 frames, moves right by 2 px a frame for
 50 frames, then stands still again; 120 x 160 px, 130 frames. The noise law ``k / A`` is fitted
 on the first 30 frames (per-pixel temporal variance times amplitude squared).
@@ -110,12 +110,11 @@ def truth() -> tuple[torch.Tensor, torch.Tensor]:
     return depth, refl
 
 
-def simulate(impulsive: bool):
+def simulate():
     from tof_fpn_torch.sim import Scene, Simulation
 
     depth, refl = truth()
-    sim = Simulation() if impulsive else Simulation().without("impulsive")
-    out = sim.run(Scene(depth=depth, reflectance=refl), frames=1, seed=0)
+    out = Simulation().run(Scene(depth=depth, reflectance=refl), frames=1, seed=0)
     if bool(out.saturated.any()):
         raise RuntimeError("the recording saturates: its depth is biased there")
     return depth, out.depth, out.amplitude
@@ -193,8 +192,8 @@ def trails(out, gt, sd) -> dict:
     }
 
 
-def bench_recording(impulsive: bool) -> dict:
-    gt, depth, amplitude = simulate(impulsive)
+def bench_recording() -> dict:
+    gt, depth, amplitude = simulate()
     k = fit_noise_k(depth, amplitude)
     sd = (k / amplitude[:, 0]).clamp_min(1e-6)
     static = (gt[:, 0] == gt[:1, 0]).all(0)
@@ -338,7 +337,6 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="write the results here")
     parser.add_argument("--real", action="store_true", help="the Azure Kinect figure")
     parser.add_argument("--png", type=Path, default=ROOT / "docs/figures/temporal_real.png")
-    parser.add_argument("--impulsive", action="store_true", help="keep impulsive pixels")
     parser.add_argument("--rounds", type=int, default=30)
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -346,7 +344,7 @@ def main() -> None:
         result = {"real": bench_real(args.png)}
     else:
         result = {
-            "recording": bench_recording(args.impulsive),
+            "recording": bench_recording(),
             "speed": bench_speed(args.rounds),
         }
     text = json.dumps(result, indent=1)
