@@ -165,7 +165,7 @@ def export_onnx(
         tuple(example_inputs),
         str(path),
         input_names=names,
-        output_names=["output"],
+        output_names=list(getattr(model, "onnx_outputs", ["output"])),
         opset_version=opset,
         dynamo=True,
         dynamic_shapes=dynamic_shapes,

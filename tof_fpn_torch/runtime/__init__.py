@@ -14,11 +14,14 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.destripe`: :func:`destripe`, :class:`Destripe` (broadband column / row offsets, one frame).
 - :mod:`.fixed_pattern`: :class:`FixedPatternCorrection` (a calibrated fixed pattern, as buffers).
 - :mod:`.complex_pattern`: :class:`ComplexPatternCorrection` (a calibrated complex-domain pattern).
+- :mod:`.flying`: :func:`flying_pixels`, :class:`FlyingPixels` (mixed pixels at depth edges: flags,
+  a confidence map, invalidate or reassign).
 """
 
 from .complex_pattern import ComplexPatternCorrection
 from .destripe import Destripe, destripe
 from .fixed_pattern import FixedPatternCorrection
+from .flying import FlyingPixels, flying_pixels
 from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
 from .suppression import FPNSuppression
@@ -32,10 +35,12 @@ __all__ = [
     "FPNFilter",
     "FPNSuppression",
     "FixedPatternCorrection",
+    "FlyingPixels",
     "all_valid",
     "amplitude_fusion",
     "amplitude_weight",
     "destripe",
+    "flying_pixels",
     "fpn_filter",
     "valid_mask",
     "KeepZeros",

@@ -1,0 +1,62 @@
+r"""Local plane fits ("facets") of a depth map (torch only, TorchScript- and ONNX-clean).
+
+A facet is the least-squares plane ``z = m + g_x x + g_y y`` through an ``h x w`` window
+(``h``, ``w`` odd, ``x, y`` in pixels from its centre). With the window sums ``S = sum z``,
+``S_x = sum x z``, ``S_y = sum y z`` and ``Q = sum z^2`` over its ``N = h w`` pixels,
+``X = h sum x^2`` and ``Y = w sum y^2`` (``1``, ``x`` and ``y`` are orthogonal on a window
+symmetric about its centre)::
+
+    m = S / N,   g_x = S_x / X,   g_y = S_y / Y,
+    v = (Q - N m^2 - X g_x^2 - Y g_y^2) / (N - 3)       (residual variance, N - 3 dof)
+
+All four are convolutions of ``z`` and ``z^2`` (one ``conv2d`` call each); a window touching an
+invalid pixel (NaN) gives NaN, which every comparison downstream reads as False. ``v`` is clamped
+at 0 (float round-off). The facet's value at an offset ``(dy, dx)`` from its centre is
+``m + g_y dy + g_x dx``; its variance for i.i.d. noise of variance ``s^2`` is
+``s^2 (1 / N + dy^2 / Y + dx^2 / X)``.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+__all__ = ["facet_sums", "plane_fit", "shifted"]
+
+
+def facet_sums(
+    h: int, w: int, dtype: torch.dtype, device: torch.device
+) -> tuple[torch.Tensor, float, float]:
+    """``(kernels, X, Y)``: the (3, 1, h, w) kernels of ``S``, ``S_x``, ``S_y``, and ``X``, ``Y``."""
+    px = torch.arange(-(w // 2), w // 2 + 1, dtype=dtype, device=device)
+    py = torch.arange(-(h // 2), h // 2 + 1, dtype=dtype, device=device)
+    ones = torch.ones(h, w, dtype=dtype, device=device)
+    kx = px.view(1, w).expand(h, w)
+    ky = py.view(h, 1).expand(h, w)
+    kernels = torch.stack([ones, kx, ky]).reshape(3, 1, h, w)
+    return kernels, float(h) * float((px * px).sum()), float(w) * float((py * py).sum())
+
+
+def plane_fit(
+    z: torch.Tensor, h: int, w: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(m, g_x, g_y, v)`` of the ``h x w`` facet centred on every pixel of ``z`` (B, 1, H, W),
+    each (B, 1, H, W); NaN where the window touches a NaN or leaves the image."""
+    kernels, sxx, syy = facet_sums(h, w, z.dtype, z.device)
+    x = F.pad(z, (w // 2, w // 2, h // 2, h // 2), value=float("nan"))
+    sums = F.conv2d(x, kernels)
+    q = F.conv2d(x * x, kernels[:1])
+    count = float(h * w)
+    m = sums[:, 0:1] / count
+    gx = sums[:, 1:2] / sxx
+    gy = sums[:, 2:3] / syy
+    v = (q - count * m * m - sxx * gx * gx - syy * gy * gy) / (count - 3.0)
+    return m, gx, gy, torch.clamp(v, min=0.0)
+
+
+def shifted(padded: torch.Tensor, dy: int, dx: int, pad: int) -> torch.Tensor:
+    """The map at offset ``(dy, dx)`` from every pixel: a view of ``padded`` (a map padded by
+    ``pad`` on every side; ``|dy|, |dx| <= pad``)."""
+    h = padded.shape[-2] - 2 * pad
+    w = padded.shape[-1] - 2 * pad
+    return padded[:, :, pad + dy : pad + dy + h, pad + dx : pad + dx + w]
