@@ -198,3 +198,32 @@ def test_onnx_equals_eager(tmp_path):
         got = session.run(None, {"depth": d.numpy(), "amplitude": a.numpy()})
         for g, want in zip(got, stage(d, a), strict=True):
             torch.testing.assert_close(torch.from_numpy(g), want, atol=1e-5, rtol=0)
+
+
+def test_clean_flying_invalidates_and_records(tmp_path, capsys):
+    import json
+
+    import numpy as np
+    from PIL import Image
+
+    from tof_fpn_torch.cli import main
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    depth, amp, mixed, _ = planted(11)
+    Image.fromarray(np.round(depth[0, 0].numpy() * 1000).astype(np.uint16)).save(
+        folder / "a_depth.png"
+    )
+    Image.fromarray(np.round(amp[0, 0].numpy()).astype(np.uint16)).save(folder / "a_amplitude.png")
+    out = tmp_path / "out"
+    args = ["clean", str(folder), str(out), "--notch", "off", "--destripe", "off", "--no-figure"]
+    assert main([*args, "--flying", "invalidate", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "flying pixels: invalidate" in printed and "flying pixels: " in printed
+    written = np.asarray(Image.open(out / "a_depth.png"))
+    assert bool((written[mixed.numpy()] == 0).all())
+    records = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    (rec,) = [r for r in records if r.get("status") == "done"]
+    fly = rec["report"]["flying"]
+    assert fly["flagged"] >= int(mixed.sum()) and fly["valid"] == depth.numel()
+    assert "invalidate" in (out / "clean.toml").read_text()

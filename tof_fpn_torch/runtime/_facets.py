@@ -14,14 +14,20 @@ invalid pixel (NaN) gives NaN, which every comparison downstream reads as False.
 at 0 (float round-off). The facet's value at an offset ``(dy, dx)`` from its centre is
 ``m + g_y dy + g_x dx``; its variance for i.i.d. noise of variance ``s^2`` is
 ``s^2 (1 / N + dy^2 / Y + dx^2 / X)``.
+
+Also here, for the flying-pixel stage (:mod:`.flying`): :func:`local_noise` (the noise map raised
+to the local level of the 3 x 3 facet residuals) and :func:`nearest_kept` (the depth a reassigned
+pixel takes).
 """
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 
-__all__ = ["facet_sums", "plane_fit", "shifted"]
+__all__ = ["facet_sums", "local_noise", "nearest_kept", "plane_fit", "shifted"]
 
 
 def facet_sums(
@@ -60,3 +66,38 @@ def shifted(padded: torch.Tensor, dy: int, dx: int, pad: int) -> torch.Tensor:
     h = padded.shape[-2] - 2 * pad
     w = padded.shape[-1] - 2 * pad
     return padded[:, :, pad + dy : pad + dy + h, pad + dx : pad + dx + w]
+
+
+def local_noise(x: torch.Tensor, law: torch.Tensor, size: int, clip: float) -> torch.Tensor:
+    """The noise map raised to the local level where the data are noisier than the law: the root
+    of the mean over a ``size`` x ``size`` window of the 3 x 3 facet residual variances, each
+    clipped at ``clip`` times the law's variance (a window across an edge counts as that)."""
+    v = plane_fit(x, 3, 3)[3]
+    cap = clip * law * law
+    ok = torch.isfinite(v)
+    vc = torch.where(ok, torch.minimum(v, cap), torch.zeros_like(v))
+    pad = size // 2
+    total = F.avg_pool2d(F.pad(vc, (pad, pad, pad, pad)), size, 1)
+    count = F.avg_pool2d(F.pad(ok.to(v.dtype), (pad, pad, pad, pad)), size, 1)
+    local = torch.sqrt(total / count.clamp_min(1.0 / float(size * size)))
+    return torch.maximum(law, local)
+
+
+def nearest_kept(x: torch.Tensor, keep: torch.Tensor, radius: int) -> torch.Tensor:
+    """The depth of the kept pixel within ``radius`` (a square) whose depth is nearest to ``x``
+    (NaN where there is none): the surface a mixed pixel is mostly made of."""
+    xp = F.pad(
+        torch.where(keep, x, torch.full_like(x, math.nan)),
+        (radius, radius, radius, radius),
+        value=float("nan"),
+    )
+    best = torch.full_like(x, math.inf)
+    target = torch.full_like(x, math.nan)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            q = shifted(xp, dy, dx, radius)
+            err = (x - q).abs()
+            better = err < best  # NaN (not kept) compares False
+            best = torch.where(better, err, best)
+            target = torch.where(better, q, target)
+    return target

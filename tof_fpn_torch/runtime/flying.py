@@ -63,7 +63,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ._checks import check_image, check_same_shape, check_tensor_type
-from ._facets import plane_fit, shifted
+from ._facets import local_noise, nearest_kept, plane_fit, shifted
 from .noise import facet_noise
 from .validity import valid_mask
 
@@ -150,41 +150,6 @@ def _support(x: torch.Tensor, sigma: torch.Tensor, facet_fit: float, size: int) 
                 unit = s * math.sqrt(1.0 + 1.0 / count + float(oy * oy + ox * ox) / moment)
                 z_s = torch.where(surface & (err < z_s * unit), err / unit, z_s)
     return torch.where(seen, z_s, torch.full_like(x, -math.inf))
-
-
-def _local_noise(x: torch.Tensor, law: torch.Tensor, size: int, clip: float) -> torch.Tensor:
-    """The noise map raised to the local level where the data are noisier than the law: the root
-    of the mean over a ``size`` x ``size`` window of the 3 x 3 facet residual variances, each
-    clipped at ``clip`` times the law's variance (a window across an edge counts as that)."""
-    v = plane_fit(x, 3, 3)[3]
-    cap = clip * law * law
-    ok = torch.isfinite(v)
-    vc = torch.where(ok, torch.minimum(v, cap), torch.zeros_like(v))
-    pad = size // 2
-    total = F.avg_pool2d(F.pad(vc, (pad, pad, pad, pad)), size, 1)
-    count = F.avg_pool2d(F.pad(ok.to(v.dtype), (pad, pad, pad, pad)), size, 1)
-    local = torch.sqrt(total / count.clamp_min(1.0 / float(size * size)))
-    return torch.maximum(law, local)
-
-
-def _nearest_kept(x: torch.Tensor, keep: torch.Tensor, radius: int) -> torch.Tensor:
-    """The depth of the kept pixel within ``radius`` (a square) whose depth is nearest to ``x``
-    (NaN where there is none): the surface a mixed pixel is mostly made of."""
-    xp = F.pad(
-        torch.where(keep, x, torch.full_like(x, math.nan)),
-        (radius, radius, radius, radius),
-        value=float("nan"),
-    )
-    best = torch.full_like(x, math.inf)
-    target = torch.full_like(x, math.nan)
-    for dy in range(-radius, radius + 1):
-        for dx in range(-radius, radius + 1):
-            q = shifted(xp, dy, dx, radius)
-            err = (x - q).abs()
-            better = err < best  # NaN (not kept) compares False
-            best = torch.where(better, err, best)
-            target = torch.where(better, q, target)
-    return target
 
 
 def _side(
@@ -298,7 +263,7 @@ def _flying(
     amp: torch.Tensor | None = None
     if amplitude is not None:
         amp = torch.where(valid, amplitude.to(work), torch.full_like(d, math.nan))
-    sigma = _local_noise(x, facet_noise(x, amp, min_noise), local, clip)
+    sigma = local_noise(x, facet_noise(x, amp, min_noise), local, clip)
     z_s = _support(x, sigma, facet_fit, size)
     z_b = _between(x, sigma, amp, tolerance, reach, share)
     q = torch.minimum(z_s, z_b)
@@ -309,7 +274,7 @@ def _flying(
         return depth.clone(), conf.to(depth.dtype)
     new = torch.full_like(d, fill)
     if action == "reassign":
-        target = _nearest_kept(x, valid & ~flagged, radius)
+        target = nearest_kept(x, valid & ~flagged, radius)
         new = torch.where(torch.isfinite(target), target, new)
     return torch.where(flagged, new.to(depth.dtype), depth), conf.to(depth.dtype)
 
