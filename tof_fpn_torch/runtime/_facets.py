@@ -9,9 +9,9 @@ symmetric about its centre)::
     m = S / N,   g_x = S_x / X,   g_y = S_y / Y,
     v = (Q - N m^2 - X g_x^2 - Y g_y^2) / (N - 3)       (residual variance, N - 3 dof)
 
-All four are convolutions of ``z`` and ``z^2`` (one ``conv2d`` call each); a window touching an
-invalid pixel (NaN) gives NaN, which every comparison downstream reads as False. ``v`` is clamped
-at 0 (float round-off). The facet's value at an offset ``(dy, dx)`` from its centre is
+``m``, ``g_x``, ``g_y`` are convolutions of ``z`` (one ``conv2d`` call), ``v`` the sum of the
+squared residuals over the window's pixels; a window touching an invalid pixel (NaN) gives NaN,
+which every comparison downstream reads as False. The facet's value at an offset ``(dy, dx)`` from its centre is
 ``m + g_y dy + g_x dx``; its variance for i.i.d. noise of variance ``s^2`` is
 ``s^2 (1 / N + dy^2 / Y + dx^2 / X)``.
 
@@ -47,17 +47,26 @@ def plane_fit(
     z: torch.Tensor, h: int, w: int
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(m, g_x, g_y, v)`` of the ``h x w`` facet centred on every pixel of ``z`` (B, 1, H, W),
-    each (B, 1, H, W); NaN where the window touches a NaN or leaves the image."""
+    each (B, 1, H, W); NaN where the window touches a NaN or leaves the image. ``v`` is the mean
+    of the squared residuals over the window (``N - 3`` dof), summed pixel by pixel: from ``Q -
+    N m^2`` it would cancel in float32 (the variance of 1 mm noise on 2 m is below the rounding of
+    ``Q``)."""
     kernels, sxx, syy = facet_sums(h, w, z.dtype, z.device)
-    x = F.pad(z, (w // 2, w // 2, h // 2, h // 2), value=float("nan"))
+    ph, pw = h // 2, w // 2
+    x = F.pad(z, (pw, pw, ph, ph), value=float("nan"))
     sums = F.conv2d(x, kernels)
-    q = F.conv2d(x * x, kernels[:1])
     count = float(h * w)
     m = sums[:, 0:1] / count
     gx = sums[:, 1:2] / sxx
     gy = sums[:, 2:3] / syy
-    v = (q - count * m * m - sxx * gx * gx - syy * gy * gy) / (count - 3.0)
-    return m, gx, gy, torch.clamp(v, min=0.0)
+    v = torch.zeros_like(m)
+    rows, cols = z.shape[-2], z.shape[-1]
+    for dy in range(-ph, ph + 1):
+        for dx in range(-pw, pw + 1):
+            zq = x[:, :, ph + dy : ph + dy + rows, pw + dx : pw + dx + cols]
+            r = zq - (m + gy * float(dy) + gx * float(dx))
+            v = v + r * r
+    return m, gx, gy, v / (count - 3.0)
 
 
 def shifted(padded: torch.Tensor, dy: int, dx: int, pad: int) -> torch.Tensor:

@@ -154,10 +154,10 @@ def _support(x: torch.Tensor, sigma: torch.Tensor, facet_fit: float, size: int) 
 
 def _side(
     xp: torch.Tensor,
-    sp: torch.Tensor,
+    s2p: torch.Tensor,
     ap: torch.Tensor | None,
     x: torch.Tensor,
-    sigma: torch.Tensor,
+    s2: torch.Tensor,
     uy: int,
     ux: int,
     sign: int,
@@ -165,26 +165,24 @@ def _side(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(lower, higher, amp, near, far)`` on one side of a line: the largest margin (in noise
     units) by which a pixel within ``reach`` is nearer / farther than ``x`` (-inf where none is
-    valid), the largest amplitude there (0 without one), the smallest and largest depth."""
-    neg = torch.full_like(x, -math.inf)
-    lower = neg
-    higher = neg
+    valid), the largest amplitude there (0 without one), the smallest and largest depth. ``s2``:
+    the noise variance (``s2p`` padded like ``xp``); a NaN (invalid) compares False throughout."""
+    lower = torch.full_like(x, -math.inf)
+    lowest = torch.full_like(x, math.inf)
     near = torch.full_like(x, math.inf)
-    far = neg
+    far = torch.full_like(x, -math.inf)
     amp = torch.zeros_like(x)
     for k in range(1, reach + 1):
         q = shifted(xp, sign * k * uy, sign * k * ux, reach)
-        s = shifted(sp, sign * k * uy, sign * k * ux, reach)
-        diff = (x - q) / torch.sqrt(0.5 * (s * s + sigma * sigma))
-        ok = torch.isfinite(diff)
-        lower = torch.where(ok & (diff > lower), diff, lower)
-        higher = torch.where(ok & (-diff > higher), -diff, higher)
-        near = torch.where(ok & (q < near), q, near)
-        far = torch.where(ok & (q > far), q, far)
+        diff = (x - q) / torch.sqrt(0.5 * (shifted(s2p, sign * k * uy, sign * k * ux, reach) + s2))
+        lower = torch.where(diff > lower, diff, lower)
+        lowest = torch.where(diff < lowest, diff, lowest)
+        near = torch.where(q < near, q, near)
+        far = torch.where(q > far, q, far)
         if ap is not None:
             a = shifted(ap, sign * k * uy, sign * k * ux, reach)
             amp = torch.where(a > amp, a, amp)
-    return lower, higher, amp, near, far
+    return lower, -lowest, amp, near, far
 
 
 def _between(
@@ -201,14 +199,15 @@ def _between(
     other's."""
     pad = reach
     xp = F.pad(x, (pad, pad, pad, pad), value=float("nan"))
-    sp = F.pad(sigma, (pad, pad, pad, pad), value=float("nan"))
+    s2 = sigma * sigma
+    s2p = F.pad(s2, (pad, pad, pad, pad), value=float("nan"))
     ap: torch.Tensor | None = None
     if amplitude is not None:
         ap = F.pad(amplitude, (pad, pad, pad, pad), value=float("nan"))
     z_b = torch.full_like(x, -math.inf)
     for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
-        low_a, high_a, amp_a, near_a, far_a = _side(xp, sp, ap, x, sigma, uy, ux, -1, reach)
-        low_b, high_b, amp_b, near_b, far_b = _side(xp, sp, ap, x, sigma, uy, ux, 1, reach)
+        low_a, high_a, amp_a, near_a, far_a = _side(xp, s2p, ap, x, s2, uy, ux, -1, reach)
+        low_b, high_b, amp_b, near_b, far_b = _side(xp, s2p, ap, x, s2, uy, ux, 1, reach)
         z_ab = torch.minimum(low_a, high_b)
         z_ba = torch.minimum(low_b, high_a)
         if share > 0.0:
