@@ -17,6 +17,8 @@ the defaults shown)::
     denoise = "none"      # none or a denoiser of tof_fpn_torch.clean.DENOISERS (nlm, bm3d, ...)
     pattern = "wall.npz"  # a fixed pattern from tof-fpn calibrate, removed first (default: none)
     temporal = false      # the temporal filter over the frames of each multi-frame file, last
+    flying = "off"        # flying (mixed) pixels at depth edges, after the FPN stage and before
+                          #   the denoiser: off | mark (counted only) | invalidate | reassign
 
     [notch]
     order = 20            # filter order
@@ -83,6 +85,7 @@ from .. import constants as K
 
 __all__ = [
     "BATCH",
+    "FLYING",
     "CALIBRATION_FRAMES",
     "CHOICES",
     "CleanConfig",
@@ -107,6 +110,8 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "fusion": ("off", "camera", "data", "manual"),
     "rounding": ("dither", "nearest"),
 }
+#: the allowed values of ``flying`` (absent: off, and left out of the saved file)
+FLYING: tuple[str, ...] = ("off", "mark", "invalidate", "reassign")
 #: the fusion that goes with each notch choice when ``fusion`` is not given
 FUSION_FOR_NOTCH: dict[str, str] = {"off": "off", "design": "camera", "data": "data"}
 #: what each ``stage`` preset sets (a key given explicitly wins)
@@ -117,7 +122,17 @@ PRESETS: dict[str, dict[str, str]] = {
 #: TOML table -> {key: CleanConfig field}
 _TABLES: dict[str, dict[str, str]] = {
     "pipeline": {
-        k: k for k in ("stage", "destripe", "notch", "fusion", "denoise", "pattern", "temporal")
+        k: k
+        for k in (
+            "stage",
+            "destripe",
+            "notch",
+            "fusion",
+            "denoise",
+            "pattern",
+            "temporal",
+            "flying",
+        )
     },
     "notch": {"order": "order", "rho": "rho", "gate": "gate"},
     "fusion": {"camera": "camera", "low": "low", "high": "high"},
@@ -157,6 +172,9 @@ class CleanConfig:
         output_scale: integer outputs: metres per stored unit, or None (the input's).
         temporal: the temporal filter over the frames of each multi-frame file (off by default).
         temporal_alpha, temporal_guard, temporal_persistence: its settings.
+        flying: the flying-pixel stage (:class:`~tof_fpn_torch.runtime.FlyingPixels`):
+            None or ``"off"``, ``"mark"`` (counted in the record, depth unchanged), ``"invalidate"`` or
+            ``"reassign"``.
     """
 
     stage: str = "auto"
@@ -183,6 +201,7 @@ class CleanConfig:
     temporal_alpha: float = K.TEMPORAL_ALPHA
     temporal_guard: float = K.TEMPORAL_GUARD
     temporal_persistence: int = 0
+    flying: str | None = None
 
     def __post_init__(self) -> None:
         if self.stage not in CHOICES["stage"]:
@@ -207,6 +226,8 @@ class CleanConfig:
             raise ValueError(f"pattern must be a file name or absent, got {self.pattern!r}")
         if not isinstance(self.denoise, str) or not self.denoise:
             raise ValueError(f"denoise must be 'none' or a denoiser name, got {self.denoise!r}")
+        if self.flying is not None and self.flying not in FLYING:
+            raise ValueError(f"flying must be one of {list(FLYING)}, got {self.flying!r}")
         _int("order", self.order, 1)
         _int("calibration_frames", self.calibration_frames, 1)
         _int("batch", self.batch, 1)

@@ -16,7 +16,9 @@ input and from the output *as stored*, so integer rounding counts):
   there is a notch;
 * ``lowpass_change_mm``: the largest RMS change of the 15 x 15 low-passed depth
   (:func:`~tof_fpn_torch.analysis.lowpass_change`): how far the scene itself moved;
-* ``changed``: the share of valid pixels whose stored value changed.
+* ``changed``: the share of valid pixels whose stored value changed;
+* ``flying``: with the flying-pixel stage, the pixels it flagged and the valid pixels it saw, over
+  all frames (``flagged``, ``valid``, ``share``), None without it.
 
 :func:`summarise` condenses the records of a run into the lines the command prints.
 """
@@ -80,9 +82,15 @@ def _finite_mean(values: list[float]) -> float | None:
     return sum(v) / len(v) if v else None
 
 
-def file_report(sets: list[FrameSet], encoded: dict, gates: list[list[float]] | None) -> dict:
+def file_report(
+    sets: list[FrameSet],
+    encoded: dict,
+    gates: list[list[float]] | None,
+    flying: list[list[tuple[int, int]]] | None = None,
+) -> dict:
     """The record of one file (module docstring) from its frame sets as read, the encoded depth
-    arrays (by set key) and the notch gate per frame (None without a notch)."""
+    arrays (by set key), the notch gate per frame (None without a notch) and the flying-pixel
+    counts ``(flagged, valid)`` per frame (None or empty without the stage)."""
     frames = []
     for fs in sets:
         out = FrameSet(fs.key, encoded[fs.key], fs.amplitude, fs.depth_scale, fs.shape)
@@ -113,6 +121,11 @@ def file_report(sets: list[FrameSet], encoded: dict, gates: list[list[float]] | 
     flat = [g for per_set in gates or [] for g in per_set]
     if gates is not None and flat:
         rec["gate"] = {"mean": sum(flat) / len(flat), "open_frames": sum(g > 0 for g in flat)}
+    counts = [n for per_set in flying or [] for n in per_set]
+    rec["flying"] = None
+    if counts:
+        flagged, valid = sum(n[0] for n in counts), sum(n[1] for n in counts)
+        rec["flying"] = {"flagged": flagged, "valid": valid, "share": flagged / max(valid, 1)}
     return rec
 
 
@@ -152,6 +165,13 @@ def summarise(records: list[dict]) -> list[str]:
                 f"{name[:-1]} stripe energy down {statistics.median(gains):.1f} dB (median over "
                 f"{len(gains)} file(s); range {min(gains):.1f} to {max(gains):.1f} dB)"
             )
+    flying = [r["flying"] for r in reps if r.get("flying")]
+    if flying:
+        flagged, valid = sum(f["flagged"] for f in flying), sum(f["valid"] for f in flying)
+        lines.append(
+            f"flying pixels: {flagged} flagged, {100 * flagged / max(valid, 1):.2f} % of the "
+            f"valid pixels of {len(flying)} file(s)"
+        )
     gated = [r["gate"] for r in reps if r["gate"] is not None]
     if gated:
         opened = sum(g["open_frames"] for g in gated)

@@ -32,7 +32,7 @@ from ..build import (
     suppression_from_data,
     suppression_from_design,
 )
-from ..runtime import Destripe, FPNSuppression
+from ..runtime import Destripe, FlyingPixels, FPNSuppression, valid_mask
 from .config import CleanConfig
 from .pattern import load_pattern
 from .temporal import temporal_module
@@ -85,13 +85,17 @@ class CleanPipeline(nn.Module):
         fpn: FPNSuppression | None = None,
         denoiser: nn.Module | None = None,
         pattern: nn.Module | None = None,
+        flying: nn.Module | None = None,
     ):
         super().__init__()
         self.pattern = pattern
         self.fpn = fpn
+        self.flying = flying
         self.denoiser = denoiser
         self.calibration: dict | None = None  # what a data-driven stage was measured on
         self.temporal: nn.Module | None = None  # run per frame set after forward (.temporal)
+        #: (B, 2) flagged and valid pixels per frame of the last call (None without the stage)
+        self.last_flying: torch.Tensor | None = None
 
     def gates(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor | None:
         """(B,) the notch stage's gate per frame (None without a notch filter), for the record."""
@@ -109,6 +113,11 @@ class CleanPipeline(nn.Module):
             y = self.pattern(y, amplitude)
         if self.fpn is not None:
             y = self.fpn(y, amplitude)
+        if self.flying is not None:
+            valid = valid_mask(y, amplitude)
+            y, conf = self.flying(y, amplitude)
+            flagged = (conf < 0.5) & valid
+            self.last_flying = torch.stack([flagged.flatten(1).sum(1), valid.flatten(1).sum(1)], 1)
         if self.denoiser is not None:
             y = self.denoiser(y, amplitude)
         return y
@@ -210,7 +219,8 @@ def build_pipeline(
     if fpn is not None and fpn.filter is None and fpn.destripe is None:
         fpn = None  # measured: nothing to do
     denoiser = make_denoiser(config.denoise, config.denoise_options)
-    pipeline = CleanPipeline(fpn, denoiser, pattern)
+    flying = None if config.flying in (None, "off") else FlyingPixels(config.flying)
+    pipeline = CleanPipeline(fpn, denoiser, pattern, flying)
     if config.temporal:
         pipeline.temporal = temporal_module(
             config.temporal_alpha, config.temporal_guard, config.temporal_persistence
@@ -246,6 +256,7 @@ def describe(pipeline: CleanPipeline) -> dict:
             out["destripe"] = fpn.destripe.extra_repr()
     if pipeline.denoiser is not None:
         out["denoise"] = f"{type(pipeline.denoiser).__name__}({pipeline.denoiser.extra_repr()})"
+    out["flying"] = None if pipeline.flying is None else pipeline.flying.action
     out["calibration"] = pipeline.calibration
     out["pattern"] = None if pipeline.pattern is None else type(pipeline.pattern).__name__
     t = pipeline.temporal
@@ -274,6 +285,8 @@ def stage_line(info: dict, stage: str) -> str:
         parts.append("gated" if info.get("gate") else "ungated")
     if info.get("destripe") is not None:
         parts.append(f"destripe {info['destripe']}")
+    if info.get("flying") is not None:
+        parts.append(f"flying pixels: {info['flying']}")
     if info.get("denoise") is not None:
         parts.append(f"denoise {info['denoise']}")
     if info.get("temporal") is not None:

@@ -48,6 +48,7 @@ class Loaded:
     cleaned: list[torch.Tensor] | None = None
     gates: list[list[float]] | None = None
     temporal: list[dict] | None = None
+    flying: list[list[tuple[int, int]]] | None = None  # (flagged, valid) per frame, per set
     empty: int = 0
     identity: dict | None = None
     error: str | None = None
@@ -125,6 +126,7 @@ def compute_group(
             continue
         item.cleaned = [torch.empty(0)] * len(item.tensors)
         item.gates = [[] for _ in item.tensors]
+        item.flying = [[] for _ in item.tensors]
         for s, (depth, amplitude) in enumerate(item.tensors):
             has = valid_mask(depth, amplitude).flatten(1).any(1).tolist()
             for f in range(depth.shape[0]):
@@ -143,6 +145,8 @@ def compute_group(
                 d = torch.cat([it.tensors[s][0][f : f + 1] for _, it, s, f in chunk]).to(device)
                 a = torch.cat([it.tensors[s][1][f : f + 1] for _, it, s, f in chunk]).to(device)
                 y = pipeline(d, a).cpu()
+                fly = getattr(pipeline, "last_flying", None)
+                fly = None if fly is None else fly.tolist()
                 gates = pipeline.gates(d, a) if hasattr(pipeline, "gates") else None
             except Exception as exc:  # noqa: BLE001 -- recorded for the batch's files
                 for _, it, _, _ in chunk:
@@ -153,6 +157,8 @@ def compute_group(
                 parts.setdefault((id(it), s), []).append((f, y[i : i + 1]))
                 if gates is not None:
                     it.gates[s].append((f, float(gates[i])))
+                if fly is not None:
+                    it.flying[s].append((f, tuple(fly[i])))
                 it.seconds["compute"] += share
     for item in group:
         if item.error is None and item.cleaned is not None:
@@ -160,6 +166,7 @@ def compute_group(
                 frames = sorted(parts.get((id(item), s), []), key=lambda p: p[0])
                 item.cleaned[s] = torch.cat([t for _, t in frames])
                 item.gates[s] = [g for _, g in sorted(item.gates[s])]
+                item.flying[s] = [n for _, n in sorted(item.flying[s])]
             _temporal(getattr(pipeline, "temporal", None), item)
         if item.error is not None:
             item.cleaned = None
@@ -213,7 +220,7 @@ def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
                 pass
         return {"error": f"write failed: {reason(exc)}"}
     try:
-        report = file_report(item.sets, encoded, item.gates)
+        report = file_report(item.sets, encoded, item.gates, item.flying)
     except Exception as exc:  # noqa: BLE001 -- the file is written; the record says why not
         report = {"error": f"not measured: {reason(exc)}"}
     return {"clamped": clamped, "report": report}

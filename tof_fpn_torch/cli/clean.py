@@ -21,6 +21,7 @@ except ModuleNotFoundError:  # Python 3.10: the same parser as a package
     import tomli as tomllib
 
 from ..clean import CHOICES, DENOISERS, ENGINES, CleanConfig, clean, load_config
+from ..clean.config import FLYING
 from ._common import UsageError, float_arg, int_arg, set_threads, threads_arg
 
 #: ``--denoise`` values
@@ -69,6 +70,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--notch", choices=CHOICES["notch"], help="periodic stripes")
     g.add_argument("--fusion", choices=CHOICES["fusion"], help="eq. (11) amplitude fusion")
     g.add_argument("--denoise", choices=DENOISE_CHOICES, help="denoiser after the FPN stage")
+    g.add_argument("--flying", choices=FLYING, help="mixed pixels at depth edges (default off)")
     g.add_argument(
         "--pattern",
         metavar="FILE",
@@ -148,6 +150,7 @@ def config_from_args(args: argparse.Namespace) -> CleanConfig:
         rounding=args.rounding,
         output_scale=args.output_scale,
         temporal=True if args.temporal else None,
+        flying=args.flying,
     )
 
 

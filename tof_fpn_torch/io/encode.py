@@ -39,7 +39,8 @@ def encode_depth(
     input decoded by :func:`frame_set_tensors`). A changed valid pixel gets ``stored +
     change / scale`` and stays valid: floating files cast; integer files round and clamp to
     ``[1, max]`` (0 is the invalid code). A non-finite result (which the run-time stages never
-    give) keeps the input value.
+    give) keeps the input value. A valid pixel a stage invalidated on purpose (cleaned depth
+    exactly 0, as ``tof-fpn clean --flying invalidate`` does) is written as 0.
 
     Args:
         fs: the frame set as read.
@@ -65,7 +66,9 @@ def encode_depth(
         valid = (stored > 0) & np.isfinite(stored)
         valid &= (fs.amplitude >= 0) & np.isfinite(fs.amplitude)
     before = depth_from_stored(stored, fs.depth_scale)[:, 0].numpy().astype(np.float64)
-    change = depth.detach().cpu().double()[:, 0].numpy() - before  # 0 where unchanged
+    cleaned = depth.detach().cpu().double()[:, 0].numpy()
+    dropped = valid & (cleaned == 0.0)  # invalidated by a stage (the flying-pixel stage)
+    change = cleaned - before  # 0 where unchanged
     finite = np.isfinite(change)
     change = np.where(finite, change, 0.0)
     if integer:
@@ -83,8 +86,8 @@ def encode_depth(
             new = new.astype(stored.dtype)
         moved = ~(np.isfinite(new) & (new > 0))
     keep = ~valid | ~finite | (moved & (not integer))
-    out = np.where(keep, stored, new).astype(stored.dtype)
-    return out, int((valid & (~finite | moved)).sum())
+    out = np.where(dropped, 0, np.where(keep, stored, new)).astype(stored.dtype)
+    return out, int((valid & ~dropped & (~finite | moved)).sum())
 
 
 def _dither(units: np.ndarray, stored: np.ndarray) -> np.ndarray:

@@ -16,11 +16,14 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.complex_pattern`: :class:`ComplexPatternCorrection` (a calibrated complex-domain pattern).
 - :mod:`.temporal`: :func:`temporal_filter`, :class:`TemporalFilter` (recordings: a causal
   recursive filter with a motion guard, its state passed in and out).
+- :mod:`.flying`: :func:`flying_pixels`, :class:`FlyingPixels` (mixed pixels at depth edges: flags,
+  a confidence map, invalidate or reassign).
 """
 
 from .complex_pattern import ComplexPatternCorrection
 from .destripe import Destripe, destripe
 from .fixed_pattern import FixedPatternCorrection
+from .flying import FlyingPixels, flying_pixels
 from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
 from .suppression import FPNSuppression
@@ -36,10 +39,12 @@ __all__ = [
     "FPNSuppression",
     "FixedPatternCorrection",
     "TemporalFilter",
+    "FlyingPixels",
     "all_valid",
     "amplitude_fusion",
     "amplitude_weight",
     "destripe",
+    "flying_pixels",
     "fpn_filter",
     "promised_noise_factor",
     "temporal_filter",

@@ -11,6 +11,9 @@ Three estimators, each where its kind of robustness is needed:
   times over the values within 3 of its sigmas, de-biased for the clipping. Sums only (no sort), so
   it exports; unlike a MAD it does not collapse to 0 on two-valued data (a stripe at ``pi``). The
   stripe gate (:mod:`.gate`) and the stripe detection (:mod:`tof_fpn_torch.analysis.stripes`).
+* **Noise law from facets** (:func:`facet_noise`): a per-pixel map ``sigma(A)`` from the
+  residuals of local 3 x 3 plane fits, the law ``log sigma^2 = c - gamma log A`` fitted per frame
+  (the flying-pixel and temporal stages). Described at the end.
 * **Clipped RMS** (:func:`clipped_rms_scale`): a MAD start refined by clipped-RMS iterations
   de-biased for the clipping (:func:`scale_moment`), for one channel or the magnitude of two (a
   complex residual); depth quantised to whole millimetres, where the MAD can be 0, is measured
@@ -47,6 +50,19 @@ exactly, whatever the amplitudes, and::
     k_hat = median(|d| / s) / Phi^-1(3/4)
 
 over the valid coefficients (pixels with ``A <= 0`` or non-finite ``A`` are invalid).
+
+The noise law per pixel (:func:`facet_noise`)
+---------------------------------------------
+Shot noise gives ``sigma_D^2 ~ 1 / A``, read noise ``~ 1 / A^2`` (eq. 2); a camera sits in
+between. The residual variance ``v`` of the 3 x 3 plane fit around a pixel (6 degrees of
+freedom, :mod:`._facets`) estimates ``sigma^2`` there without bias on planes and slopes; windows
+across a depth edge are far above it. Per frame, ``log v = c - gamma log A`` is fitted by least
+squares over the pixels with ``v > 0`` and ``A > 0``, three times, each time keeping the residuals
+within 2 (natural-log units; the log of a chi-square with 6 degrees of freedom over 6 has a
+standard deviation of 0.6, so 2 keeps the noise and drops the edges), ``gamma`` clamped to
+``[0, 2]``. The map is ``sigma = exp((c - gamma log A + 0.1758) / 2)``, ``0.1758 = log 3 - psi(3)``
+de-biasing the mean of the log; without an amplitude ``gamma = 0`` (one level per frame). Sums
+only: it scripts and exports.
 """
 
 from __future__ import annotations
@@ -58,12 +74,14 @@ import torch.nn.functional as F
 
 from .. import constants as K
 from ._checks import check_image
+from ._facets import plane_fit
 
 __all__ = [
     "clipped_rms_scale",
     "clipped_scale",
     "estimate_noise_k",
     "estimate_sigma",
+    "facet_noise",
     "hh_kernel",
     "mad_to_sigma",
     "scale_moment",
@@ -298,3 +316,68 @@ def clipped_rms_scale(
         m2 = torch.where(sel, sq, 0.0).sum(1) / sel.sum(1).clamp_min(1)
         sigma = torch.sqrt(m2 / moment)
     return sigma
+
+
+#: log 3 - digamma(3): minus the mean of log(chi2_6 / 6), the de-biasing of the fitted log level
+_LOG_CHI2_6_BIAS = 0.17582795
+#: residuals (natural-log units) kept by the fit of :func:`facet_noise`
+_FACET_NOISE_CLIP = 2.0
+
+
+def facet_noise(
+    depth: torch.Tensor,
+    amplitude: torch.Tensor | None = None,
+    min_noise: float = 1e-3,
+    clip: float = _FACET_NOISE_CLIP,
+    bias: float = _LOG_CHI2_6_BIAS,
+) -> torch.Tensor:
+    """Per-pixel depth noise (standard deviation) from the law ``sigma^2 = e^c A^-gamma`` fitted
+    per frame to local 3 x 3 plane-fit residuals (module docstring).
+
+    Args:
+        depth: (B, 1, H, W) depth; NaN (or any invalid value made NaN by the caller) is ignored.
+        amplitude: (B, 1, H, W) amplitude, or None (one level per frame).
+        min_noise: the floor of the map, in depth units (quantised depth can have a 0 residual).
+        clip, bias: the fit's trimming (log units) and de-biasing (the module's defaults).
+
+    Returns:
+        (B, 1, H, W) noise in depth units, ``>= min_noise``; pixels with ``A <= 0`` get the value
+        of the smallest positive amplitude the law allows (``A`` clamped at 1e-6).
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> d = 2.0 + 0.01 * torch.randn(1, 1, 64, 64, generator=g)
+        >>> round(float(facet_noise(d).median()), 3)
+        0.01
+    """
+    v = plane_fit(depth, 3, 3)[3]
+    ok = torch.isfinite(v) & (v > 0)
+    lv = torch.log(torch.where(ok, v, torch.ones_like(v)))
+    if amplitude is None:
+        la = torch.zeros_like(v)
+    else:
+        a_ok = torch.isfinite(amplitude) & (amplitude > 0)
+        ok = ok & a_ok
+        la = torch.log(torch.where(a_ok, amplitude, torch.ones_like(amplitude)))
+    w = ok.to(v.dtype)
+    c0 = torch.zeros(v.shape[0], 1, 1, 1, dtype=v.dtype, device=v.device)
+    gamma = torch.zeros_like(c0)
+    dims = [1, 2, 3]
+    for _it in range(3):
+        n = w.sum(dims, keepdim=True)
+        nz = n.clamp_min(1.0)
+        mx = (w * la).sum(dims, keepdim=True) / nz
+        my = (w * lv).sum(dims, keepdim=True) / nz
+        if amplitude is not None:
+            cov = (w * (la - mx) * (lv - my)).sum(dims, keepdim=True)
+            var = (w * (la - mx) * (la - mx)).sum(dims, keepdim=True)
+            gamma = torch.clamp(-cov / var.clamp_min(1e-12), 0.0, 2.0)
+        c0 = torch.where(n > 0, my + gamma * mx, torch.full_like(c0, -1e30))
+        keep = (lv - (c0 - gamma * la)).abs() < clip
+        w = (ok & keep).to(v.dtype)
+    if amplitude is None:
+        la_px = torch.zeros_like(depth)
+    else:
+        la_px = torch.log(torch.clamp(torch.nan_to_num(amplitude, nan=1.0), min=1e-6))
+    sigma = torch.exp(0.5 * (c0 - gamma * la_px + bias))
+    return torch.clamp(sigma, min=min_noise)

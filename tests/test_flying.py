@@ -1,0 +1,229 @@
+"""The flying-pixel stage (tof_fpn_torch.runtime.flying): planted mixed pixels are flagged, slopes,
+flat areas and thin bars are kept, invalid pixels pass bit for bit, TorchScript and ONNX equal eager,
+bad input is refused, the output follows the input's device and dtype."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from tof_fpn_torch.runtime import FlyingPixels, flying_pixels
+from tof_fpn_torch.runtime.flying import ACTIONS
+
+NOISE = 0.003
+
+
+def planted(seed: int = 0, h: int = 48, w: int = 80):
+    """A slanted wall at 2-2.4 m, a box at 1 m (columns 48-65), one column of mixed pixels at its
+    left edge (column 47: 1.5 m, the amplitude of a mixture), bars 1, 2 and 3 px wide at 1.2 m
+    on the wall (columns 9, 19-20, 31-33: the wall around them is wider than the facets, see
+    docs/flying.md), 3 mm noise; returns depth, amplitude, the mixed mask and the bar mask."""
+    g = torch.Generator().manual_seed(seed)
+    yy = torch.arange(h, dtype=torch.float32).view(-1, 1)
+    xx = torch.arange(w, dtype=torch.float32).view(1, -1)
+    depth = (2.0 + 0.005 * yy + 0.002 * xx).expand(h, w).clone()
+    amp = torch.full((h, w), 100.0)
+    depth[:, 48:66] = 1.0
+    amp[:, 48:66] = 400.0
+    mixed = torch.zeros(h, w, dtype=torch.bool)
+    mixed[8:40, 47] = True
+    depth[mixed] = 1.5
+    amp[mixed] = 250.0
+    bars = torch.zeros(h, w, dtype=torch.bool)
+    for c0, c1 in ((9, 10), (19, 21), (31, 34)):
+        bars[10:38, c0:c1] = True
+    depth[bars] = 1.2
+    amp[bars] = 300.0
+    depth = depth + NOISE * torch.randn(h, w, generator=g)
+    amp = amp * (1 + 0.02 * torch.randn(h, w, generator=g))
+    return depth.view(1, 1, h, w), amp.view(1, 1, h, w), mixed, bars
+
+
+def test_planted_mixed_column_flagged_and_nothing_else():
+    depth, amp, mixed, bars = planted()
+    for a in (amp, None):
+        _, conf = flying_pixels(depth, a)
+        flagged = (conf < 0.5)[0, 0]
+        assert bool(flagged[mixed].all()), "every planted mixed pixel is flagged"
+        rows = slice(12, 36)  # away from the column's and bars' ends (those are edges too)
+        assert int(flagged[rows][~mixed[rows]].sum()) == 0, "nothing else is flagged"
+
+
+def test_thin_bars_and_flat_slope_are_kept():
+    depth, amp, _, bars = planted(1)
+    for action in ("invalidate", "reassign"):
+        out, conf = flying_pixels(depth, amp, action=action)
+        inner = bars.clone()
+        inner[:12] = False
+        inner[36:] = False
+        assert bool((conf[0, 0][inner] >= 0.5).all())
+        assert torch.equal(out[0, 0][inner], depth[0, 0][inner])
+    wall = torch.zeros_like(bars)
+    wall[4:44, 38:42] = True  # slanted wall between the bars and the box's mixed column
+    wall[4:44, 70:76] = True
+    assert bool((conf[0, 0][wall] >= 0.5).all())
+
+
+def test_step_without_mixing_is_not_flagged():
+    depth, amp, mixed, _ = planted(2)
+    depth[0, 0][mixed] = 1.0  # the column now belongs to the box: a clean step
+    amp[0, 0][mixed] = 400.0
+    _, conf = flying_pixels(depth, amp)
+    # noise alone flags a few scattered pixels (0.05 % here): none on the step
+    assert int((conf < 0.5).sum()) <= 0.002 * depth.numel()
+    assert int((conf < 0.5)[0, 0][:, 44:52].sum()) == 0
+
+
+def test_actions():
+    depth, amp, mixed, _ = planted(3)
+    marked, conf = flying_pixels(depth, amp, action="mark")
+    assert torch.equal(marked, depth) and marked is not depth
+    inv, _ = flying_pixels(depth, amp, action="invalidate")
+    flagged = (conf < 0.5)[0, 0]
+    assert bool((inv[0, 0][flagged] == 0).all())
+    assert torch.equal(inv[0, 0][~flagged], depth[0, 0][~flagged])
+    nan, _ = flying_pixels(depth, amp, action="invalidate", fill=math.nan)
+    assert bool(nan[0, 0][flagged].isnan().all())
+    re, _ = flying_pixels(depth, amp, action="reassign")
+    # a mixed pixel at 1.5 m between the wall (~2.1 m) and the box (1.0 m) goes to the box,
+    # whose depth is nearer: it takes a kept neighbour's value
+    assert bool(((re[0, 0][mixed] - 1.0).abs() < 4 * NOISE).all())
+    kept = depth[0, 0][~flagged]
+    assert torch.equal(re[0, 0][~flagged], kept)
+
+
+def test_invalid_pixels_pass_bit_for_bit():
+    depth, amp, _, _ = planted(4)
+    g = torch.Generator().manual_seed(4)
+    holes = torch.rand(depth.shape, generator=g) < 0.05
+    codes = torch.tensor([0.0, math.nan, -1.0, math.inf])
+    pick = torch.randint(0, 4, depth.shape, generator=g)
+    holed = torch.where(holes, codes[pick], depth)
+    for action in ACTIONS:
+        out, conf = flying_pixels(holed, amp, action=action)
+        assert torch.equal(out[holes].view(torch.int32), holed[holes].view(torch.int32))
+        assert bool((conf[holes] == 0).all())
+    # a pixel all of whose facets touch a hole is never flagged
+    solid = torch.zeros_like(holes)
+    solid[..., 20:30, 36:44] = True  # 5 x 5 windows 3-4 px away all touch the ring
+    ring = torch.zeros_like(holes)
+    ring[..., 14:36, 30:50] = True
+    ring[..., 16:34, 32:48] = False
+    out, conf = flying_pixels(torch.where(ring, 0.0, depth), amp)
+    assert bool((conf[solid] >= 0.5).all())
+
+
+def test_confidence_range_and_threshold():
+    depth, amp, _, _ = planted(5)
+    _, conf = flying_pixels(depth, amp)
+    assert conf.min() >= 0 and conf.max() <= 1 and conf.dtype == depth.dtype
+    _, strict = flying_pixels(depth, amp, threshold=50.0)
+    assert int((strict < 0.5).sum()) < int((conf < 0.5).sum())
+
+
+def test_input_not_modified_and_dtype_device_follow():
+    depth, amp, _, _ = planted(6)
+    before = depth.clone()
+    out, conf = flying_pixels(depth.double(), amp.double(), action="invalidate")
+    assert torch.equal(depth, before)
+    assert out.dtype == torch.float64 and conf.dtype == torch.float64
+    assert out.device == depth.device and conf.device == depth.device
+    out16, _ = flying_pixels(depth.half(), amp.half())
+    assert out16.dtype == torch.float16
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
+def test_cuda_equals_cpu():
+    depth, amp, _, _ = planted(7)
+    out, conf = FlyingPixels("reassign")(depth.cuda(), amp.cuda())
+    ref, ref_conf = FlyingPixels("reassign")(depth, amp)
+    assert out.is_cuda and torch.allclose(out.cpu(), ref, atol=1e-5)
+    assert torch.allclose(conf.cpu(), ref_conf, atol=1e-5)
+
+
+def test_bad_input_is_refused_with_a_reason():
+    depth, amp, _, _ = planted()
+    with pytest.raises(TypeError, match="torch.Tensor"):
+        flying_pixels(depth.numpy(), amp)
+    with pytest.raises(ValueError, match=r"\(B, C, H, W\)"):
+        flying_pixels(depth[0], amp[0])
+    with pytest.raises(ValueError, match="1 channel"):
+        flying_pixels(depth.repeat(1, 2, 1, 1))
+    with pytest.raises(ValueError, match="same shape"):
+        flying_pixels(depth, amp[..., 1:])
+    with pytest.raises(ValueError, match="floating"):
+        flying_pixels(depth.long(), amp)
+    with pytest.raises(ValueError, match="action"):
+        FlyingPixels("erase")
+    with pytest.raises(ValueError, match="threshold"):
+        flying_pixels(depth, amp, threshold=-1.0)
+
+
+@pytest.mark.parametrize("action", ACTIONS)
+def test_torchscript_equals_eager(action):
+    depth, amp, _, _ = planted(8)
+    depth[0, 0, 3, 3] = 0.0
+    stage = FlyingPixels(action)
+    scripted = torch.jit.script(stage)
+    for a in (amp, None):
+        for got, want in zip(scripted(depth, a), stage(depth, a), strict=True):
+            torch.testing.assert_close(got, want, atol=1e-5, rtol=0, equal_nan=True)
+
+
+def test_onnx_equals_eager(tmp_path):
+    """The TorchScript-based exporter (8 s here); ``export_onnx`` (torch.export, dynamo) gives a
+    graph that agrees as well but takes about 3 minutes on this stage's unrolled loops."""
+    import onnxruntime as ort
+
+    depth, amp, _, _ = planted(9)
+    stage = FlyingPixels("reassign")
+    path = tmp_path / "flying.onnx"
+    axes = {0: "batch", 2: "height", 3: "width"}
+    torch.onnx.export(
+        stage,
+        (depth, amp),
+        str(path),
+        input_names=["depth", "amplitude"],
+        output_names=stage.onnx_outputs,
+        opset_version=17,
+        dynamo=False,
+        dynamic_axes={"depth": axes, "amplitude": axes},
+    )
+    session = ort.InferenceSession(str(path))
+    assert [o.name for o in session.get_outputs()] == ["output", "confidence"]
+    other = planted(10, h=40, w=56)  # another size: the graph's shapes are dynamic
+    for d, a in ((depth, amp), (torch.cat([other[0], other[0]]), torch.cat([other[1]] * 2))):
+        got = session.run(None, {"depth": d.numpy(), "amplitude": a.numpy()})
+        for g, want in zip(got, stage(d, a), strict=True):
+            torch.testing.assert_close(torch.from_numpy(g), want, atol=1e-5, rtol=0)
+
+
+def test_clean_flying_invalidates_and_records(tmp_path, capsys):
+    import json
+
+    import numpy as np
+    from PIL import Image
+
+    from tof_fpn_torch.cli import main
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    depth, amp, mixed, _ = planted(11)
+    Image.fromarray(np.round(depth[0, 0].numpy() * 1000).astype(np.uint16)).save(
+        folder / "a_depth.png"
+    )
+    Image.fromarray(np.round(amp[0, 0].numpy()).astype(np.uint16)).save(folder / "a_amplitude.png")
+    out = tmp_path / "out"
+    args = ["clean", str(folder), str(out), "--notch", "off", "--destripe", "off", "--no-figure"]
+    assert main([*args, "--flying", "invalidate", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "flying pixels: invalidate" in printed and "flying pixels: " in printed
+    written = np.asarray(Image.open(out / "a_depth.png"))
+    assert bool((written[mixed.numpy()] == 0).all())
+    records = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    (rec,) = [r for r in records if r.get("status") == "done"]
+    fly = rec["report"]["flying"]
+    assert fly["flagged"] >= int(mixed.sum()) and fly["valid"] == depth.numel()
+    assert "invalidate" in (out / "clean.toml").read_text()

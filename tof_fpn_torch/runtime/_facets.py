@@ -1,0 +1,112 @@
+r"""Local plane fits ("facets") of a depth map (torch only, TorchScript- and ONNX-clean).
+
+A facet is the least-squares plane ``z = m + g_x x + g_y y`` through an ``h x w`` window
+(``h``, ``w`` odd, ``x, y`` in pixels from its centre). With the window sums ``S = sum z``,
+``S_x = sum x z``, ``S_y = sum y z`` and ``Q = sum z^2`` over its ``N = h w`` pixels,
+``X = h sum x^2`` and ``Y = w sum y^2`` (``1``, ``x`` and ``y`` are orthogonal on a window
+symmetric about its centre)::
+
+    m = S / N,   g_x = S_x / X,   g_y = S_y / Y,
+    v = (Q - N m^2 - X g_x^2 - Y g_y^2) / (N - 3)       (residual variance, N - 3 dof)
+
+``m``, ``g_x``, ``g_y`` are convolutions of ``z`` (one ``conv2d`` call), ``v`` the sum of the
+squared residuals over the window's pixels; a window touching an invalid pixel (NaN) gives NaN,
+which every comparison downstream reads as False. The facet's value at an offset ``(dy, dx)`` from its centre is
+``m + g_y dy + g_x dx``; its variance for i.i.d. noise of variance ``s^2`` is
+``s^2 (1 / N + dy^2 / Y + dx^2 / X)``.
+
+Also here, for the flying-pixel stage (:mod:`.flying`): :func:`local_noise` (the noise map raised
+to the local level of the 3 x 3 facet residuals) and :func:`nearest_kept` (the depth a reassigned
+pixel takes).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+__all__ = ["facet_sums", "local_noise", "nearest_kept", "plane_fit", "shifted"]
+
+
+def facet_sums(
+    h: int, w: int, dtype: torch.dtype, device: torch.device
+) -> tuple[torch.Tensor, float, float]:
+    """``(kernels, X, Y)``: the (3, 1, h, w) kernels of ``S``, ``S_x``, ``S_y``, and ``X``, ``Y``."""
+    px = torch.arange(-(w // 2), w // 2 + 1, dtype=dtype, device=device)
+    py = torch.arange(-(h // 2), h // 2 + 1, dtype=dtype, device=device)
+    ones = torch.ones(h, w, dtype=dtype, device=device)
+    kx = px.view(1, w).expand(h, w)
+    ky = py.view(h, 1).expand(h, w)
+    kernels = torch.stack([ones, kx, ky]).reshape(3, 1, h, w)
+    return kernels, float(h) * float((px * px).sum()), float(w) * float((py * py).sum())
+
+
+def plane_fit(
+    z: torch.Tensor, h: int, w: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(m, g_x, g_y, v)`` of the ``h x w`` facet centred on every pixel of ``z`` (B, 1, H, W),
+    each (B, 1, H, W); NaN where the window touches a NaN or leaves the image. ``v`` is the mean
+    of the squared residuals over the window (``N - 3`` dof), summed pixel by pixel: from ``Q -
+    N m^2`` it would cancel in float32 (the variance of 1 mm noise on 2 m is below the rounding of
+    ``Q``)."""
+    kernels, sxx, syy = facet_sums(h, w, z.dtype, z.device)
+    ph, pw = h // 2, w // 2
+    x = F.pad(z, (pw, pw, ph, ph), value=float("nan"))
+    sums = F.conv2d(x, kernels)
+    count = float(h * w)
+    m = sums[:, 0:1] / count
+    gx = sums[:, 1:2] / sxx
+    gy = sums[:, 2:3] / syy
+    v = torch.zeros_like(m)
+    rows, cols = z.shape[-2], z.shape[-1]
+    for dy in range(-ph, ph + 1):
+        for dx in range(-pw, pw + 1):
+            zq = x[:, :, ph + dy : ph + dy + rows, pw + dx : pw + dx + cols]
+            r = zq - (m + gy * float(dy) + gx * float(dx))
+            v = v + r * r
+    return m, gx, gy, v / (count - 3.0)
+
+
+def shifted(padded: torch.Tensor, dy: int, dx: int, pad: int) -> torch.Tensor:
+    """The map at offset ``(dy, dx)`` from every pixel: a view of ``padded`` (a map padded by
+    ``pad`` on every side; ``|dy|, |dx| <= pad``)."""
+    h = padded.shape[-2] - 2 * pad
+    w = padded.shape[-1] - 2 * pad
+    return padded[:, :, pad + dy : pad + dy + h, pad + dx : pad + dx + w]
+
+
+def local_noise(x: torch.Tensor, law: torch.Tensor, size: int, clip: float) -> torch.Tensor:
+    """The noise map raised to the local level where the data are noisier than the law: the root
+    of the mean over a ``size`` x ``size`` window of the 3 x 3 facet residual variances, each
+    clipped at ``clip`` times the law's variance (a window across an edge counts as that)."""
+    v = plane_fit(x, 3, 3)[3]
+    cap = clip * law * law
+    ok = torch.isfinite(v)
+    vc = torch.where(ok, torch.minimum(v, cap), torch.zeros_like(v))
+    pad = size // 2
+    total = F.avg_pool2d(F.pad(vc, (pad, pad, pad, pad)), size, 1)
+    count = F.avg_pool2d(F.pad(ok.to(v.dtype), (pad, pad, pad, pad)), size, 1)
+    local = torch.sqrt(total / count.clamp_min(1.0 / float(size * size)))
+    return torch.maximum(law, local)
+
+
+def nearest_kept(x: torch.Tensor, keep: torch.Tensor, radius: int) -> torch.Tensor:
+    """The depth of the kept pixel within ``radius`` (a square) whose depth is nearest to ``x``
+    (NaN where there is none): the surface a mixed pixel is mostly made of."""
+    xp = F.pad(
+        torch.where(keep, x, torch.full_like(x, math.nan)),
+        (radius, radius, radius, radius),
+        value=float("nan"),
+    )
+    best = torch.full_like(x, math.inf)
+    target = torch.full_like(x, math.nan)
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            q = shifted(xp, dy, dx, radius)
+            err = (x - q).abs()
+            better = err < best  # NaN (not kept) compares False
+            best = torch.where(better, err, best)
+            target = torch.where(better, q, target)
+    return target

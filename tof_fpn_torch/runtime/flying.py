@@ -1,0 +1,385 @@
+r"""Flying (mixed) pixels at depth edges: detection, a confidence map, and what to do with them
+(torch only; TorchScript and ONNX exportable).
+
+A pixel whose footprint straddles a depth edge sums the returns of both surfaces. The phasors add,
+so its depth lies **between** the two surfaces and its amplitude is that of a mixture (at most the
+brighter side's): a point floating in the air between foreground and background. A slanted
+surface also has depths between its neighbours; what tells them apart is that a slope is a
+surface: a plane fitted beside the pixel, extrapolated to it, predicts it. A mixed pixel is
+predicted by no surface around it.
+
+**Noise.** ``sigma``: the law ``sigma^2 = e^c A^-gamma`` of
+:func:`~tof_fpn_torch.runtime.noise.facet_noise` (fitted per frame to 3 x 3 plane residuals; one
+level without an amplitude), raised where the data are locally noisier than the law to the root
+of the mean of the 3 x 3 residual variances over the :data:`LOCAL` (7) x 7 window around the
+pixel, each clipped at :data:`LOCAL_CLIP` (2) times the law's variance (so the windows across an
+edge add little).
+
+**The rule.** A valid pixel ``p`` with depth ``d`` is **flying** when both hold:
+
+1. *No surface predicts it.* Facets are least-squares planes through the :data:`FACET` (5) x 5
+   windows centred 3 and 4 pixels from ``p`` in the 8 directions (16 facets, :mod:`._facets`); a
+   narrower window fits a 3-pixel ramp through a mixed pixel as well as it fits a surface. A facet
+   is a **surface** when its residual variance is at most :data:`FACET_FIT` (3) times ``sigma^2``
+   at its centre (a window across an edge is not a plane and fails). ``z_s = min |d - P_f| /
+   u_f`` over the surfaces ``f``, ``P_f`` the plane extrapolated to ``p``, ``u_f = sigma_f sqrt(1
+   + 1/N + r^2/M)`` the standard deviation of ``d - P_f`` (``r`` the offset, ``M`` the window's
+   second moment). Where no facet has all its pixels valid (holes, frame borders) the pixel is
+   never flagged.
+2. *It lies between two sides.* Along one of the 4 lines through ``p`` (horizontal, vertical,
+   diagonal), a pixel within :data:`REACH` (4) on one side is nearer than ``d`` and one on the
+   other side is farther, each by ``z_b`` times ``sqrt((sigma_p^2 + sigma_q^2) / 2)``, and ``d``
+   lies at least :data:`SHARE` (5 %) of the way from the nearest depth of the one side to the
+   farthest of the other, and from that to this (a pixel at 2 % of a 2 m step is on its surface,
+   e.g. the border column of a 3-pixel bar). ``z_b`` is the largest such margin over the lines.
+   With an amplitude, a line counts only where ``A_p <= (1 + tolerance) max A_q`` over its pixels
+   (:data:`AMPLITUDE_TOLERANCE`; a mixture is not brighter than its brighter surface).
+
+``q = min(z_s, z_b)``; the pixel is flagged when ``q > threshold`` (:data:`THRESHOLD`, 2.25). The
+**confidence** is ``clamp((threshold + softness - q) / (2 softness), 0, 1)``: 1 for a pixel a
+surface explains, 0 for a clear mixed pixel, 0.5 at the threshold (a valid pixel is flagged iff
+its confidence is < 0.5), 0 at invalid pixels; a network can take it as an input channel.
+
+An object thinner than the window (a bar 1-3 px wide, a cable) is nearer than both sides of it,
+not between them, so it is kept; the mixed pixels at its border are flagged like any other.
+
+**Actions.** ``"mark"`` returns the depth unchanged (the confidence is the product),
+``"invalidate"`` writes ``fill`` (0: the usual "no measurement" code; NaN works too) into flagged
+pixels, ``"reassign"`` gives each flagged pixel the depth of the kept pixel within
+:data:`REASSIGN_RADIUS` (2) whose depth is nearest to its own (the surface that dominates the
+mixture; ``fill`` where there is none). Invalid input pixels are returned bit for bit in every
+mode.
+
+The constants were chosen on simulated scenes (``benchmarks/bench_flying.py``, its tuning seeds);
+how the rule differs from the camera SDKs' (libfreenect2, the ADI SDK, Open3D): docs/flying.md.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ._checks import check_image, check_same_shape, check_tensor_type
+from ._facets import local_noise, nearest_kept, plane_fit, shifted
+from .noise import facet_noise
+from .validity import valid_mask
+
+__all__ = [
+    "ACTIONS",
+    "AMPLITUDE_TOLERANCE",
+    "FACET",
+    "FACET_FIT",
+    "LOCAL",
+    "LOCAL_CLIP",
+    "REACH",
+    "REASSIGN_RADIUS",
+    "RULE",
+    "SHARE",
+    "THRESHOLD",
+    "FlyingPixels",
+    "flying_pixels",
+]
+
+#: what :func:`flying_pixels` does with a flagged pixel
+ACTIONS: tuple[str, ...] = ("mark", "invalidate", "reassign")
+#: a facet is a surface when its residual variance is at most this times the noise variance
+FACET_FIT: float = 3.0
+#: pixels on each side of a line that the "between" test looks at
+REACH: int = 4
+#: a mixture's amplitude may exceed its brighter side's by this fraction (noise) and still count
+AMPLITUDE_TOLERANCE: float = 0.1
+#: a pixel is between two sides when at least this share of their depth gap from each
+SHARE: float = 0.05
+#: noise sigmas a pixel must be off every surface and between two sides by to be flagged
+THRESHOLD: float = 2.25
+#: side of the window of the local noise level (pixels)
+LOCAL: int = 7
+#: facet residual variances above this times the law's count as this in the local level
+LOCAL_CLIP: float = 2.0
+#: side of the facet windows (pixels)
+FACET: int = 5
+#: a reassigned pixel takes the depth of a kept pixel at most this far (a square)
+REASSIGN_RADIUS: int = 2
+#: the constants as the functions take them (TorchScript reads no module globals)
+RULE: tuple[float, float, float, float, int, int, int, int] = (
+    FACET_FIT,
+    AMPLITUDE_TOLERANCE,
+    SHARE,
+    LOCAL_CLIP,
+    REACH,
+    FACET,
+    REASSIGN_RADIUS,
+    LOCAL,
+)
+
+
+def _support(x: torch.Tensor, sigma: torch.Tensor, facet_fit: float, size: int) -> torch.Tensor:
+    """``z_s``: the smallest distance of ``x`` to a surface facet's extrapolation in units of its
+    standard deviation (inf where no facet is a surface; -inf where no facet has all its pixels
+    valid, so no test applies). Facets: ``size`` x ``size`` (5) windows
+    centred 3 and 4
+    pixels away in the 8 directions (a narrower window fits a 3-pixel ramp through a mixed pixel as
+    well as it fits a surface)."""
+    m, gx, gy, v = plane_fit(x, size, size)
+    pad = 4
+    mp = F.pad(m, (pad, pad, pad, pad), value=float("nan"))
+    gxp = F.pad(gx, (pad, pad, pad, pad), value=float("nan"))
+    gyp = F.pad(gy, (pad, pad, pad, pad), value=float("nan"))
+    vp = F.pad(v, (pad, pad, pad, pad), value=float("nan"))
+    sp = F.pad(sigma, (pad, pad, pad, pad), value=float("nan"))
+    count = float(size * size)
+    moment = float(size * sum([k * k for k in range(-(size // 2), size // 2 + 1)]))
+    z_s = torch.full_like(x, math.inf)
+    seen = torch.zeros_like(x, dtype=torch.bool)
+    for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
+        for sign in [-1, 1]:
+            for dist in [3, 4]:
+                oy = sign * dist * uy
+                ox = sign * dist * ux
+                pred = shifted(mp, oy, ox, pad) - (
+                    oy * shifted(gyp, oy, ox, pad) + ox * shifted(gxp, oy, ox, pad)
+                )
+                s = shifted(sp, oy, ox, pad)
+                fit = shifted(vp, oy, ox, pad)
+                seen = seen | torch.isfinite(fit)
+                surface = fit <= facet_fit * s * s
+                err = (x - pred).abs()
+                unit = s * math.sqrt(1.0 + 1.0 / count + float(oy * oy + ox * ox) / moment)
+                z_s = torch.where(surface & (err < z_s * unit), err / unit, z_s)
+    return torch.where(seen, z_s, torch.full_like(x, -math.inf))
+
+
+def _side(
+    xp: torch.Tensor,
+    s2p: torch.Tensor,
+    ap: torch.Tensor | None,
+    x: torch.Tensor,
+    s2: torch.Tensor,
+    uy: int,
+    ux: int,
+    sign: int,
+    reach: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(lower, higher, amp, near, far)`` on one side of a line: the largest margin (in noise
+    units) by which a pixel within ``reach`` is nearer / farther than ``x`` (-inf where none is
+    valid), the largest amplitude there (0 without one), the smallest and largest depth. ``s2``:
+    the noise variance (``s2p`` padded like ``xp``); a NaN (invalid) compares False throughout."""
+    lower = torch.full_like(x, -math.inf)
+    lowest = torch.full_like(x, math.inf)
+    near = torch.full_like(x, math.inf)
+    far = torch.full_like(x, -math.inf)
+    amp = torch.zeros_like(x)
+    for k in range(1, reach + 1):
+        q = shifted(xp, sign * k * uy, sign * k * ux, reach)
+        diff = (x - q) / torch.sqrt(0.5 * (shifted(s2p, sign * k * uy, sign * k * ux, reach) + s2))
+        lower = torch.where(diff > lower, diff, lower)
+        lowest = torch.where(diff < lowest, diff, lowest)
+        near = torch.where(q < near, q, near)
+        far = torch.where(q > far, q, far)
+        if ap is not None:
+            a = shifted(ap, sign * k * uy, sign * k * ux, reach)
+            amp = torch.where(a > amp, a, amp)
+    return lower, -lowest, amp, near, far
+
+
+def _between(
+    x: torch.Tensor,
+    sigma: torch.Tensor,
+    amplitude: torch.Tensor | None,
+    tolerance: float,
+    reach: int,
+    share: float,
+) -> torch.Tensor:
+    """``z_b``: the largest margin (noise units) by which ``x`` lies between the two sides of one
+    of the 4 lines through it (-inf where it lies between none), looking ``reach`` pixels out; a
+    line counts where ``x`` is at least ``share`` of the way from each side's extreme to the
+    other's."""
+    pad = reach
+    xp = F.pad(x, (pad, pad, pad, pad), value=float("nan"))
+    s2 = sigma * sigma
+    s2p = F.pad(s2, (pad, pad, pad, pad), value=float("nan"))
+    ap: torch.Tensor | None = None
+    if amplitude is not None:
+        ap = F.pad(amplitude, (pad, pad, pad, pad), value=float("nan"))
+    z_b = torch.full_like(x, -math.inf)
+    for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
+        low_a, high_a, amp_a, near_a, far_a = _side(xp, s2p, ap, x, s2, uy, ux, -1, reach)
+        low_b, high_b, amp_b, near_b, far_b = _side(xp, s2p, ap, x, s2, uy, ux, 1, reach)
+        z_ab = torch.minimum(low_a, high_b)
+        z_ba = torch.minimum(low_b, high_a)
+        if share > 0.0:
+            z_ab = torch.where(
+                _inside(x, near_a, far_b, share), z_ab, torch.full_like(x, -math.inf)
+            )
+            z_ba = torch.where(
+                _inside(x, near_b, far_a, share), z_ba, torch.full_like(x, -math.inf)
+            )
+        z = torch.maximum(z_ab, z_ba)
+        if amplitude is not None:
+            mixture = amplitude <= (1.0 + tolerance) * torch.maximum(amp_a, amp_b)
+            z = torch.where(mixture, z, torch.full_like(z, -math.inf))
+        z_b = torch.maximum(z_b, z)
+    return z_b
+
+
+def _inside(x: torch.Tensor, near: torch.Tensor, far: torch.Tensor, share: float) -> torch.Tensor:
+    """``x`` lies at least ``share`` of the way from ``near`` and from ``far``."""
+    gap = share * (far - near)
+    return (x - near > gap) & (far - x > gap)
+
+
+@torch.jit.unused
+def _check(action: str, threshold: float, softness: float, min_noise: float) -> None:
+    if action not in ACTIONS:
+        raise ValueError(f"action must be one of {list(ACTIONS)}, got {action!r}")
+    for name, value in (("threshold", threshold), ("softness", softness), ("min_noise", min_noise)):
+        if not (value > 0.0 and value < math.inf):
+            raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+
+def _flying(
+    depth: torch.Tensor,
+    amplitude: torch.Tensor | None,
+    action: str,
+    threshold: float,
+    fill: float,
+    min_noise: float,
+    softness: float,
+    rule: tuple[float, float, float, float, int, int, int, int],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    facet_fit, tolerance, share, clip, reach, size, radius, local = rule
+    check_image(depth, "depth", 1)
+    if amplitude is not None:
+        check_image(amplitude, "amplitude", 1)
+        check_same_shape(amplitude, depth, "amplitude", "depth")
+    work = torch.float64 if depth.dtype == torch.float64 else torch.float32
+    d = depth.to(work)
+    valid = valid_mask(d, None if amplitude is None else amplitude.to(work))
+    x = torch.where(valid, d, torch.full_like(d, math.nan))
+    amp: torch.Tensor | None = None
+    if amplitude is not None:
+        amp = torch.where(valid, amplitude.to(work), torch.full_like(d, math.nan))
+    sigma = local_noise(x, facet_noise(x, amp, min_noise), local, clip)
+    z_s = _support(x, sigma, facet_fit, size)
+    z_b = _between(x, sigma, amp, tolerance, reach, share)
+    q = torch.minimum(z_s, z_b)
+    flagged = valid & (q > threshold)
+    conf = torch.clamp((threshold + softness - q) / (2.0 * softness), 0.0, 1.0)
+    conf = torch.where(valid, conf, torch.zeros_like(conf))
+    if action == "mark":
+        return depth.clone(), conf.to(depth.dtype)
+    new = torch.full_like(d, fill)
+    if action == "reassign":
+        target = nearest_kept(x, valid & ~flagged, radius)
+        new = torch.where(torch.isfinite(target), target, new)
+    return torch.where(flagged, new.to(depth.dtype), depth), conf.to(depth.dtype)
+
+
+def flying_pixels(
+    depth: torch.Tensor,
+    amplitude: torch.Tensor | None = None,
+    action: str = "mark",
+    threshold: float = THRESHOLD,
+    fill: float = 0.0,
+    min_noise: float = 1e-3,
+    softness: float = 1.0,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Detect flying (mixed) pixels and act on them (the rule: module docstring).
+
+    Args:
+        depth: (B, 1, H, W) float depth (metres for the default ``min_noise``); invalid pixels
+            (:func:`~tof_fpn_torch.runtime.valid_mask`) are never used and come out bit for bit.
+        amplitude: (B, 1, H, W) amplitude or None. With it the noise follows the amplitude law
+            and the mixture test applies; without it the noise is one level per frame.
+        action: ``"mark"`` (depth unchanged), ``"invalidate"`` (``fill`` at flagged pixels) or
+            ``"reassign"`` (a flagged pixel takes the depth of the nearest-in-depth kept pixel
+            within 2 px; ``fill`` where there is none).
+        threshold: noise sigmas a pixel must be off every surface and between two sides by
+            (:data:`THRESHOLD`).
+        fill: the value of an invalidated pixel (0 or NaN: both read as invalid).
+        min_noise: floor of the noise map, in depth units.
+        softness: half-width of the confidence ramp around ``threshold``, in sigmas.
+
+    Returns:
+        ``(depth, confidence)``, both (B, 1, H, W) in the depth's dtype: the depth after the
+        action and the confidence in [0, 1] (< 0.5 exactly where flagged, 0 at invalid pixels).
+
+    Example:
+        >>> d = torch.full((1, 1, 24, 24), 2.0)
+        >>> d[..., 12:] = 1.0                       # a step edge 1 m deep
+        >>> d[..., 11] = 1.5                        # one column of mixed pixels
+        >>> d = d + 0.002 * torch.randn(1, 1, 24, 24, generator=torch.Generator().manual_seed(0))
+        >>> out, conf = flying_pixels(d, action="invalidate")
+        >>> int((out[0, 0, 6:18] == 0).sum()), int((conf < 0.5).sum())
+        (12, 24)
+    """
+    if not torch.jit.is_scripting():
+        check_tensor_type(depth, "depth")
+        check_tensor_type(amplitude, "amplitude", optional=True)
+        _check(action, threshold, softness, min_noise)
+    return _flying(depth, amplitude, action, threshold, fill, min_noise, softness, RULE)
+
+
+class FlyingPixels(nn.Module):
+    """Flying-pixel stage: :func:`flying_pixels` with its settings held (module docstring).
+
+    Args:
+        action: ``"mark"``, ``"invalidate"`` or ``"reassign"``.
+        threshold, fill, min_noise, softness: as in :func:`flying_pixels`.
+
+    Shape:
+        - depth: (B, 1, H, W) float; amplitude: (B, 1, H, W) or None.
+        - Output: ``(depth, confidence)``, each (B, 1, H, W).
+
+    Example:
+        >>> stage = FlyingPixels("reassign")
+        >>> out, conf = stage(torch.full((2, 1, 32, 32), 1.5), torch.full((2, 1, 32, 32), 100.0))
+        >>> bool((out == 1.5).all()), bool((conf == 1).all())
+        (True, True)
+    """
+
+    #: names of the graph's outputs in an ONNX export (the inputs: ``depth``, ``amplitude``)
+    onnx_outputs = ["output", "confidence"]
+
+    def __init__(
+        self,
+        action: str = "mark",
+        threshold: float = THRESHOLD,
+        fill: float = 0.0,
+        min_noise: float = 1e-3,
+        softness: float = 1.0,
+    ) -> None:
+        super().__init__()
+        _check(action, threshold, softness, min_noise)
+        self.action = action
+        self.threshold = float(threshold)
+        self.fill = float(fill)
+        self.min_noise = float(min_noise)
+        self.softness = float(softness)
+        self.rule = RULE
+
+    def extra_repr(self) -> str:
+        return (
+            f"action={self.action!r}, threshold={self.threshold}, fill={self.fill}, "
+            f"min_noise={self.min_noise}, softness={self.softness}"
+        )
+
+    def forward(
+        self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        if not torch.jit.is_scripting():
+            check_tensor_type(depth, "depth")
+            check_tensor_type(amplitude, "amplitude", optional=True)
+        return _flying(
+            depth,
+            amplitude,
+            self.action,
+            self.threshold,
+            self.fill,
+            self.min_noise,
+            self.softness,
+            self.rule,
+        )
