@@ -152,39 +152,6 @@ def _support(x: torch.Tensor, sigma: torch.Tensor, facet_fit: float, size: int) 
     return torch.where(seen, z_s, torch.full_like(x, -math.inf))
 
 
-def _side(
-    xp: torch.Tensor,
-    s2p: torch.Tensor,
-    ap: torch.Tensor | None,
-    x: torch.Tensor,
-    s2: torch.Tensor,
-    uy: int,
-    ux: int,
-    sign: int,
-    reach: int,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(lower, higher, amp, near, far)`` on one side of a line: the largest margin (in noise
-    units) by which a pixel within ``reach`` is nearer / farther than ``x`` (-inf where none is
-    valid), the largest amplitude there (0 without one), the smallest and largest depth. ``s2``:
-    the noise variance (``s2p`` padded like ``xp``); a NaN (invalid) compares False throughout."""
-    lower = torch.full_like(x, -math.inf)
-    lowest = torch.full_like(x, math.inf)
-    near = torch.full_like(x, math.inf)
-    far = torch.full_like(x, -math.inf)
-    amp = torch.zeros_like(x)
-    for k in range(1, reach + 1):
-        q = shifted(xp, sign * k * uy, sign * k * ux, reach)
-        diff = (x - q) / torch.sqrt(0.5 * (shifted(s2p, sign * k * uy, sign * k * ux, reach) + s2))
-        lower = torch.where(diff > lower, diff, lower)
-        lowest = torch.where(diff < lowest, diff, lowest)
-        near = torch.where(q < near, q, near)
-        far = torch.where(q > far, q, far)
-        if ap is not None:
-            a = shifted(ap, sign * k * uy, sign * k * ux, reach)
-            amp = torch.where(a > amp, a, amp)
-    return lower, -lowest, amp, near, far
-
-
 def _between(
     x: torch.Tensor,
     sigma: torch.Tensor,
@@ -196,39 +163,80 @@ def _between(
     """``z_b``: the largest margin (noise units) by which ``x`` lies between the two sides of one
     of the 4 lines through it (-inf where it lies between none), looking ``reach`` pixels out; a
     line counts where ``x`` is at least ``share`` of the way from each side's extreme to the
-    other's."""
+    other's. The normalised difference ``D`` of a pixel and its neighbour at ``+o`` is computed
+    once and read at the neighbour, negated, for ``-o``; invalid (NaN) pixels count as absent."""
     pad = reach
+    inf = math.inf
     xp = F.pad(x, (pad, pad, pad, pad), value=float("nan"))
-    s2 = sigma * sigma
-    s2p = F.pad(s2, (pad, pad, pad, pad), value=float("nan"))
+    h2 = 0.5 * sigma * sigma
+    h2p = F.pad(h2, (pad, pad, pad, pad), value=float("nan"))
+    absent = torch.isnan(xp)
+    lo_p = torch.where(absent, torch.full_like(xp, inf), xp)  # absent: never the nearest
+    hi_p = torch.where(absent, torch.full_like(xp, -inf), xp)  # nor the farthest
     ap: torch.Tensor | None = None
     if amplitude is not None:
-        ap = F.pad(amplitude, (pad, pad, pad, pad), value=float("nan"))
-    z_b = torch.full_like(x, -math.inf)
+        a = F.pad(amplitude, (pad, pad, pad, pad), value=float("nan"))
+        ap = torch.where(a > 0, a, torch.zeros_like(a))
+    z_b = torch.full_like(x, -inf)
     for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
-        low_a, high_a, amp_a, near_a, far_a = _side(xp, s2p, ap, x, s2, uy, ux, -1, reach)
-        low_b, high_b, amp_b, near_b, far_b = _side(xp, s2p, ap, x, s2, uy, ux, 1, reach)
-        z_ab = torch.minimum(low_a, high_b)
-        z_ba = torch.minimum(low_b, high_a)
-        if share > 0.0:
-            z_ab = torch.where(
-                _inside(x, near_a, far_b, share), z_ab, torch.full_like(x, -math.inf)
-            )
-            z_ba = torch.where(
-                _inside(x, near_b, far_a, share), z_ba, torch.full_like(x, -math.inf)
-            )
+        low_a, high_a = torch.full_like(x, -inf), torch.full_like(x, -inf)
+        low_b, high_b = torch.full_like(x, -inf), torch.full_like(x, -inf)
+        for k in range(1, reach + 1):
+            oy, ox = k * uy, k * ux
+            d = (x - shifted(xp, oy, ox, pad)) / torch.sqrt(h2 + shifted(h2p, oy, ox, pad))
+            gone = torch.isnan(d)
+            d_lo = torch.where(gone, torch.full_like(d, -inf), d)
+            d_hi = torch.where(gone, torch.full_like(d, -inf), -d)
+            low_b = torch.maximum(low_b, d_lo)
+            high_b = torch.maximum(high_b, d_hi)
+            d_lo = F.pad(d_lo, (pad, pad, pad, pad), value=-inf)
+            d_hi = F.pad(d_hi, (pad, pad, pad, pad), value=-inf)
+            low_a = torch.maximum(low_a, shifted(d_hi, -oy, -ox, pad))
+            high_a = torch.maximum(high_a, shifted(d_lo, -oy, -ox, pad))
+        near_a = _along(lo_p, -uy, -ux, reach, False)
+        near_b = _along(lo_p, uy, ux, reach, False)
+        far_a = _along(hi_p, -uy, -ux, reach, True)
+        far_b = _along(hi_p, uy, ux, reach, True)
+        z_ab = _one_way(x, low_a, high_b, near_a, far_b, share)
+        z_ba = _one_way(x, low_b, high_a, near_b, far_a, share)
         z = torch.maximum(z_ab, z_ba)
-        if amplitude is not None:
-            mixture = amplitude <= (1.0 + tolerance) * torch.maximum(amp_a, amp_b)
-            z = torch.where(mixture, z, torch.full_like(z, -math.inf))
+        if amplitude is not None and ap is not None:
+            bright = torch.maximum(
+                _along(ap, uy, ux, reach, True), _along(ap, -uy, -ux, reach, True)
+            )
+            mixture = amplitude <= (1.0 + tolerance) * bright
+            z = torch.where(mixture, z, torch.full_like(z, -inf))
         z_b = torch.maximum(z_b, z)
     return z_b
 
 
-def _inside(x: torch.Tensor, near: torch.Tensor, far: torch.Tensor, share: float) -> torch.Tensor:
-    """``x`` lies at least ``share`` of the way from ``near`` and from ``far``."""
-    gap = share * (far - near)
-    return (x - near > gap) & (far - x > gap)
+def _along(padded: torch.Tensor, uy: int, ux: int, reach: int, largest: bool) -> torch.Tensor:
+    """The largest (``largest``) or smallest value of ``padded`` (padded by ``reach``, no NaN)
+    at ``k (uy, ux)`` from every pixel, ``k = 1 .. reach``."""
+    out = shifted(padded, uy, ux, reach)
+    for k in range(2, reach + 1):
+        q = shifted(padded, k * uy, k * ux, reach)
+        out = torch.maximum(out, q) if largest else torch.minimum(out, q)
+    return out
+
+
+def _one_way(
+    x: torch.Tensor,
+    lower: torch.Tensor,
+    higher: torch.Tensor,
+    near: torch.Tensor,
+    far: torch.Tensor,
+    share: float,
+) -> torch.Tensor:
+    """The margin by which ``x`` is farther than one side (``lower``) and nearer than the other
+    (``higher``); -inf unless it lies ``share`` of the way from ``near`` (one side's nearest
+    depth) and from ``far`` (the other's farthest)."""
+    z = torch.minimum(lower, higher)
+    if share > 0.0:
+        gap = share * (far - near)
+        inside = (x - near > gap) & (far - x > gap)
+        z = torch.where(inside, z, torch.full_like(z, -math.inf))
+    return z
 
 
 @torch.jit.unused
