@@ -59,10 +59,12 @@ from tof_fpn_torch.sim.camera import depth_from_samples
 from tof_fpn_torch.sim.readout import ADC, ImpulsivePixels
 from tof_fpn_torch.sim.terms import Photons, ReadNoise, ShotNoise, Term
 
-#: scene seeds of the reported figures (fixed before the rule's constants were chosen on others)
-SEEDS = (21, 22, 23, 24, 25, 26)
-#: scene seeds the rule's constants were chosen on
-TUNING_SEEDS = (11, 12, 13, 14)
+#: scene seeds of the reported figures, fixed before they were first run (the constants were chosen
+#: on ``TUNING_SEEDS`` only)
+SEEDS = (101, 102, 103, 104, 105, 106)
+#: scene seeds the rule's constants were chosen on (21-26 held out an earlier choice of ``SHARE``;
+#: they have been looked at, so they are in neither list)
+TUNING_SEEDS = (11, 12, 13, 14, 31, 32, 33, 34, 35, 36, 37, 38, 39, 40)
 #: a pixel is mixed when its noise-free depth is this many noise sd off every surface it sees
 K_TRUTH = 3.0
 #: sub-pixels per side of the box footprint
@@ -269,10 +271,10 @@ def _sum(rows: list[dict]) -> dict:
     return out
 
 
-def accuracy() -> dict:
+def accuracy(seeds: tuple[int, ...]) -> dict:
     res = {}
     for form in ("blur", "box"):
-        rows = [run_scene(form, s) for s in SEEDS]
+        rows = [run_scene(form, s) for s in seeds]
         res[form] = {m: _sum([r[m] for r in rows]) for m in ("ours", "libfreenect2")}
         res[form]["mixed_pixels"] = sum(r["mixed"] for r in rows)
         print(form, json.dumps(res[form], indent=1))
@@ -372,14 +374,16 @@ def main() -> None:
     ap.add_argument("--real", type=Path, help="write the real-capture figure (PNG) here")
     ap.add_argument("--rounds", type=int, default=15, help="timing rounds")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--tuning", action="store_true", help="score the tuning seeds instead")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     if args.real:
         shares = real_figure(args.real)
         print(json.dumps(dict(flagged_share=shares), indent=1))
         return
-    res = dict(seeds=SEEDS, k_truth=K_TRUTH, blur_sigma=BLUR_SIGMA, box_factor=FACTOR)
-    res.update(accuracy())
+    seeds = TUNING_SEEDS if args.tuning else SEEDS
+    res = dict(seeds=seeds, k_truth=K_TRUTH, blur_sigma=BLUR_SIGMA, box_factor=FACTOR)
+    res.update(accuracy(seeds))
     res["speed"] = speed(args.rounds, args.threads)
     print(json.dumps(res["speed"], indent=1))
     if args.json:

@@ -29,9 +29,10 @@ edge add little).
 2. *It lies between two sides.* Along one of the 4 lines through ``p`` (horizontal, vertical,
    diagonal), a pixel within :data:`REACH` (4) on one side is nearer than ``d`` and one on the
    other side is farther, each by ``z_b`` times ``sqrt((sigma_p^2 + sigma_q^2) / 2)``, and ``d``
-   lies at least :data:`SHARE` (5 %) of the way from the nearest depth of the one side to the
-   farthest of the other, and from that to this (a pixel at 2 % of a 2 m step is on its surface,
-   e.g. the border column of a 3-pixel bar). ``z_b`` is the largest such margin over the lines.
+   lies at least :data:`SHARE` (3 %) of the way from the nearest depth of the one side to the
+   farthest of the other, and from that to this (a pixel at 1 % of a 2 m step is on its surface,
+   e.g. the border column of a 3-pixel bar; 5 % kept more such columns and missed more mixed
+   pixels). ``z_b`` is the largest such margin over the lines.
    With an amplitude, a line counts only where ``A_p <= (1 + tolerance) max A_q`` over its pixels
    (:data:`AMPLITUDE_TOLERANCE`; a mixture is not brighter than its brighter surface).
 
@@ -92,7 +93,7 @@ REACH: int = 4
 #: a mixture's amplitude may exceed its brighter side's by this fraction (noise) and still count
 AMPLITUDE_TOLERANCE: float = 0.1
 #: a pixel is between two sides when at least this share of their depth gap from each
-SHARE: float = 0.05
+SHARE: float = 0.03
 #: noise sigmas a pixel must be off every surface and between two sides by to be flagged
 THRESHOLD: float = 2.25
 #: side of the window of the local noise level (pixels)
