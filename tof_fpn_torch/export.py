@@ -2,7 +2,9 @@
 
 TorchScript scripts the module as it is (its fast path; TorchScript keeps the branches) and keeps
 the design attributes (``order``, ``rho``, ``notches``, ``dims``, ...). ONNX goes through
-``torch.onnx.export(..., dynamo=True)`` with dynamic batch, height and width; while it traces, every
+``torch.onnx.export(..., dynamo=True)`` with dynamic batch, height and width (a module whose class
+sets ``onnx_dynamo = False`` goes through the TorchScript-based exporter instead, same dynamic
+axes); while it traces, every
 :class:`FPNFilter` sees :func:`torch.compiler.is_compiling` and takes its branch-free out-of-place
 path (mathematically identical to the in-place one, checked in ``tests/test_export.py``). The
 design attributes go into the ONNX model's ``metadata_props``. ONNX needs the ``onnx`` extra:
@@ -123,6 +125,23 @@ def _default_inputs(names: list[str], model: nn.Module) -> tuple[torch.Tensor, .
     return tuple(out)
 
 
+def _exporter_options(model: nn.Module, names: list[str], dynamic: bool) -> dict:
+    """``torch.onnx.export`` options: ``torch.export`` (dynamo) with dynamic batch, height and
+    width, or the TorchScript-based exporter with the same dynamic axes where a submodule's class
+    sets ``onnx_dynamo = False`` (a graph of many unrolled small loops, e.g.
+    :class:`~tof_fpn_torch.runtime.FlyingPixels`: seconds instead of minutes, same graph values)."""
+    if not all(getattr(type(m), "onnx_dynamo", True) for m in model.modules()):
+        axes = {n: {0: "batch", 2: "height", 3: "width"} for n in names} if dynamic else None
+        return dict(dynamo=False, dynamic_axes=axes)
+    shapes = None
+    if dynamic:
+        b = torch.export.Dim("batch")
+        h = torch.export.Dim("height", min=2)
+        w = torch.export.Dim("width", min=2)
+        shapes = {n: {0: b, 2: h, 3: w} for n in names}
+    return dict(dynamo=True, dynamic_shapes=shapes, external_data=False)
+
+
 def export_onnx(
     module: nn.Module,
     path: str | Path,
@@ -160,12 +179,6 @@ def export_onnx(
         raise ValueError(
             f"example_inputs must hold {len(names)} tensor(s) {names}, got {len(example_inputs)}"
         )
-    dynamic_shapes = None
-    if dynamic:
-        b = torch.export.Dim("batch")
-        h = torch.export.Dim("height", min=2)
-        w = torch.export.Dim("width", min=2)
-        dynamic_shapes = {n: {0: b, 2: h, 3: w} for n in names}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.onnx.export(
@@ -175,9 +188,7 @@ def export_onnx(
         input_names=names,
         output_names=list(getattr(model, "onnx_outputs", None) or ["output"]),
         opset_version=opset,
-        dynamo=True,
-        dynamic_shapes=dynamic_shapes,
-        external_data=False,
+        **_exporter_options(model, names, dynamic),
     )
     proto = onnx.load(str(path))
     for key, value in filter_metadata(model).items():

@@ -40,7 +40,10 @@ def facet_sums(
     kx = px.view(1, w).expand(h, w)
     ky = py.view(h, 1).expand(h, w)
     kernels = torch.stack([ones, kx, ky]).reshape(3, 1, h, w)
-    return kernels, float(h) * float((px * px).sum()), float(w) * float((py * py).sum())
+    # X and Y in Python (no tensor read back: torch.export traces without a data-dependent value)
+    sx = float(sum([k * k for k in range(-(w // 2), w // 2 + 1)]))
+    sy = float(sum([k * k for k in range(-(h // 2), h // 2 + 1)]))
+    return kernels, float(h) * sx, float(w) * sy
 
 
 def plane_fit(

@@ -352,6 +352,9 @@ class FlyingPixels(nn.Module):
 
     #: names of the graph's outputs in an ONNX export (the inputs: ``depth``, ``amplitude``)
     onnx_outputs = ["output", "confidence"]
+    #: :func:`~tof_fpn_torch.export.export_onnx` takes the TorchScript-based exporter (seconds;
+    #: ``torch.export`` and the ONNX optimiser take minutes over the unrolled loops)
+    onnx_dynamo = False
 
     def __init__(
         self,
