@@ -218,3 +218,35 @@ def test_clean_flying_invalidates_and_records(tmp_path, capsys):
     fly = rec["report"]["flying"]
     assert fly["flagged"] >= int(mixed.sum()) and fly["valid"] == depth.numel()
     assert "invalidate" in (out / "clean.toml").read_text()
+
+
+def test_clean_writes_the_confidence_map(tmp_path):
+    import json
+
+    import numpy as np
+    from PIL import Image
+
+    from tof_fpn_torch.clean import CleanConfig
+    from tof_fpn_torch.cli import main
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    depth, amp, mixed, _ = planted(12)
+    mm = np.round(depth[0, 0].numpy() * 1000).astype(np.uint16)
+    Image.fromarray(mm).save(folder / "a_depth.png")
+    Image.fromarray(np.round(amp[0, 0].numpy()).astype(np.uint16)).save(folder / "a_amplitude.png")
+    out = tmp_path / "out"
+    args = ["clean", str(folder), str(out), "--notch", "off", "--destripe", "off", "--no-figure"]
+    assert main([*args, "--flying", "mark", "--flying-confidence", "--quiet"]) == 0
+    conf = np.load(out / "a_depth.flying_confidence.npy")
+    assert conf.dtype == np.float32 and conf.shape == (1, *mm.shape)
+    stored = torch.from_numpy(mm.astype(np.float64) / 1000).float().view(1, 1, *mm.shape)
+    want = flying_pixels(stored, amp.round())[1]  # the stage on what the file holds
+    torch.testing.assert_close(torch.from_numpy(conf), want[0], atol=1e-5, rtol=0)
+    assert bool((conf[0][mixed.numpy()] < 0.5).all())
+    records = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    (rec,) = [r for r in records if r.get("status") == "done"]
+    assert rec["flying_confidence"] == ["a_depth.flying_confidence.npy"]
+    assert "flying_confidence = true" in (out / "clean.toml").read_text()
+    with pytest.raises(ValueError, match="flying_confidence needs"):
+        CleanConfig(flying_confidence=True)

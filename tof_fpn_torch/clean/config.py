@@ -19,6 +19,8 @@ the defaults shown)::
     temporal = false      # the temporal filter over the frames of each multi-frame file, last
     flying = "off"        # flying (mixed) pixels at depth edges, after the FPN stage and before
                           #   the denoiser: off | mark (counted only) | invalidate | reassign
+    flying_confidence = false  # write the stage's confidence map beside each output
+                          #   (<output stem>.flying_confidence.npy, float32 frames x H x W)
 
     [notch]
     order = 20            # filter order
@@ -132,6 +134,7 @@ _TABLES: dict[str, dict[str, str]] = {
             "pattern",
             "temporal",
             "flying",
+            "flying_confidence",
         )
     },
     "notch": {"order": "order", "rho": "rho", "gate": "gate"},
@@ -175,6 +178,10 @@ class CleanConfig:
         flying: the flying-pixel stage (:class:`~tof_fpn_torch.runtime.FlyingPixels`):
             None or ``"off"``, ``"mark"`` (counted in the record, depth unchanged), ``"invalidate"`` or
             ``"reassign"``.
+        flying_confidence: write the flying-pixel stage's confidence map (float32, 1: a surface
+            explains the pixel, < 0.5: flagged, 0: invalid) beside each output as
+            ``<output stem>.flying_confidence.npy`` (frames x H x W); needs ``flying`` on. None:
+            absent (off, and left out of the saved file).
     """
 
     stage: str = "auto"
@@ -202,6 +209,7 @@ class CleanConfig:
     temporal_guard: float = K.TEMPORAL_GUARD
     temporal_persistence: int = 0
     flying: str | None = None
+    flying_confidence: bool | None = None
 
     def __post_init__(self) -> None:
         if self.stage not in CHOICES["stage"]:
@@ -228,6 +236,14 @@ class CleanConfig:
             raise ValueError(f"denoise must be 'none' or a denoiser name, got {self.denoise!r}")
         if self.flying is not None and self.flying not in FLYING:
             raise ValueError(f"flying must be one of {list(FLYING)}, got {self.flying!r}")
+        if self.flying_confidence is not None and not isinstance(self.flying_confidence, bool):
+            raise ValueError(
+                f"flying_confidence must be true or false, got {self.flying_confidence!r}"
+            )
+        if self.flying_confidence and self.flying in (None, "off"):
+            raise ValueError(
+                "flying_confidence needs the flying stage: flying = mark, invalidate or reassign"
+            )
         _int("order", self.order, 1)
         _int("calibration_frames", self.calibration_frames, 1)
         _int("batch", self.batch, 1)

@@ -96,6 +96,9 @@ class CleanPipeline(nn.Module):
         self.temporal: nn.Module | None = None  # run per frame set after forward (.temporal)
         #: (B, 2) flagged and valid pixels per frame of the last call (None without the stage)
         self.last_flying: torch.Tensor | None = None
+        #: keep the flying stage's confidence of the last call in ``last_confidence``
+        self.keep_confidence = False
+        self.last_confidence: torch.Tensor | None = None
 
     def gates(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor | None:
         """(B,) the notch stage's gate per frame (None without a notch filter), for the record."""
@@ -118,6 +121,7 @@ class CleanPipeline(nn.Module):
             y, conf = self.flying(y, amplitude)
             flagged = (conf < 0.5) & valid
             self.last_flying = torch.stack([flagged.flatten(1).sum(1), valid.flatten(1).sum(1)], 1)
+            self.last_confidence = conf if self.keep_confidence else None
         if self.denoiser is not None:
             y = self.denoiser(y, amplitude)
         return y
@@ -221,6 +225,7 @@ def build_pipeline(
     denoiser = make_denoiser(config.denoise, config.denoise_options)
     flying = None if config.flying in (None, "off") else FlyingPixels(config.flying)
     pipeline = CleanPipeline(fpn, denoiser, pattern, flying)
+    pipeline.keep_confidence = flying is not None and bool(config.flying_confidence)
     if config.temporal:
         pipeline.temporal = temporal_module(
             config.temporal_alpha, config.temporal_guard, config.temporal_persistence

@@ -22,6 +22,7 @@ import shutil
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from ..io import FormatError
@@ -49,6 +50,7 @@ class Loaded:
     gates: list[list[float]] | None = None
     temporal: list[dict] | None = None
     flying: list[list[tuple[int, int]]] | None = None  # (flagged, valid) per frame, per set
+    confidence: list[torch.Tensor] | None = None  # the flying stage's confidence, per set
     empty: int = 0
     identity: dict | None = None
     error: str | None = None
@@ -121,6 +123,8 @@ def compute_group(
     device = torch.device(device)
     slots = []  # (shape, item, set index, frame index)
     parts: dict[tuple[int, int], list[tuple[int, torch.Tensor]]] = {}
+    confs: dict[tuple[int, int], list[tuple[int, torch.Tensor]]] = {}  # --flying-confidence
+    keep = bool(getattr(pipeline, "keep_confidence", False))
     for item in group:
         if item.error is not None:
             continue
@@ -134,6 +138,9 @@ def compute_group(
                     slots.append((tuple(depth.shape[-2:]), item, s, f))
                 else:  # no valid pixel: nothing to clean, the frame passes as it is
                     parts.setdefault((id(item), s), []).append((f, depth[f : f + 1]))
+                    confs.setdefault((id(item), s), []).append(
+                        (f, torch.zeros_like(depth[f : f + 1]))
+                    )
                     item.empty += 1
     shapes = list(dict.fromkeys(k for k, *_ in slots))
     for shape in shapes:
@@ -147,6 +154,7 @@ def compute_group(
                 y = pipeline(d, a).cpu()
                 fly = getattr(pipeline, "last_flying", None)
                 fly = None if fly is None else fly.tolist()
+                conf = pipeline.last_confidence.cpu() if keep else None
                 gates = pipeline.gates(d, a) if hasattr(pipeline, "gates") else None
             except Exception as exc:  # noqa: BLE001 -- recorded for the batch's files
                 for _, it, _, _ in chunk:
@@ -159,6 +167,8 @@ def compute_group(
                     it.gates[s].append((f, float(gates[i])))
                 if fly is not None:
                     it.flying[s].append((f, tuple(fly[i])))
+                if conf is not None:
+                    confs.setdefault((id(it), s), []).append((f, conf[i : i + 1]))
                 it.seconds["compute"] += share
     for item in group:
         if item.error is None and item.cleaned is not None:
@@ -167,9 +177,14 @@ def compute_group(
                 item.cleaned[s] = torch.cat([t for _, t in frames])
                 item.gates[s] = [g for _, g in sorted(item.gates[s])]
                 item.flying[s] = [n for _, n in sorted(item.flying[s])]
+            if keep:
+                item.confidence = [
+                    torch.cat([c for _, c in sorted(confs[(id(item), s)], key=lambda p: p[0])])
+                    for s in range(len(item.cleaned))
+                ]
             _temporal(getattr(pipeline, "temporal", None), item)
         if item.error is not None:
-            item.cleaned = None
+            item.cleaned = item.confidence = None
         item.tensors = None  # not needed any more (and not to be pickled back)
     return group
 
@@ -204,6 +219,11 @@ def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
         tmp = temporary(job.out_depth, token)
         temps.append((tmp, job.out_depth))
         write_like(job.depth, tmp, encoded, item.sets, config.output_scale)
+        for dst, conf in confidence_files(job, item.confidence):
+            tmp = temporary(dst, token)
+            temps.append((tmp, dst))
+            with open(tmp, "wb") as fh:
+                np.save(fh, conf[:, 0].numpy().astype(np.float32))
         if job.amplitude is not None:  # the amplitude is not changed: copied byte for byte
             tmp = temporary(job.out_amplitude, token)
             temps.append((tmp, job.out_amplitude))
@@ -224,6 +244,20 @@ def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
     except Exception as exc:  # noqa: BLE001 -- the file is written; the record says why not
         report = {"error": f"not measured: {reason(exc)}"}
     return {"clamped": clamped, "report": report}
+
+
+def confidence_files(
+    job: Job, confidence: list[torch.Tensor] | None
+) -> list[tuple[str, torch.Tensor]]:
+    """``(path, (frames, 1, H, W) confidence)`` per frame set of ``--flying-confidence``:
+    ``<output stem>.flying_confidence.npy`` beside the depth output (``.<set>`` before ``.npy``
+    when the file has several frame sets); none without it."""
+    if confidence is None:
+        return []
+    stem = os.path.splitext(job.out_depth)[0] + ".flying_confidence"
+    if len(confidence) == 1:
+        return [(stem + ".npy", confidence[0])]
+    return [(f"{stem}.{s}.npy", c) for s, c in enumerate(confidence)]
 
 
 def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig) -> list[dict]:
@@ -254,10 +288,15 @@ def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig)
                 frames=sum(int(fs.depth.shape[0]) for fs in item.sets),
                 input=item.identity,
             )
+            if item.confidence is not None:  # --flying-confidence
+                rec["flying_confidence"] = [
+                    os.path.relpath(p, root).replace(os.sep, "/")
+                    for p, _ in confidence_files(job, item.confidence)
+                ]
         else:
             rec.update(status="failed", error=item.error)
         rec.update({f"{k}_s": round(v, 6) for k, v in item.seconds.items()})
         rec["time"] = now()
         records.append(rec)
-        item.sets = item.cleaned = None
+        item.sets = item.cleaned = item.confidence = None
     return records

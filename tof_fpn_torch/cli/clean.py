@@ -72,6 +72,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--denoise", choices=DENOISE_CHOICES, help="denoiser after the FPN stage")
     g.add_argument("--flying", choices=FLYING, help="mixed pixels at depth edges (default off)")
     g.add_argument(
+        "--flying-confidence",
+        action="store_true",
+        help="write the flying-pixel confidence map beside each output "
+        "(<output stem>.flying_confidence.npy, float32 frames x H x W)",
+    )
+    g.add_argument(
         "--pattern",
         metavar="FILE",
         help="a fixed pattern from tof-fpn calibrate, removed from every frame first",
@@ -151,6 +157,7 @@ def config_from_args(args: argparse.Namespace) -> CleanConfig:
         output_scale=args.output_scale,
         temporal=True if args.temporal else None,
         flying=args.flying,
+        flying_confidence=True if args.flying_confidence else None,
     )
 
 
