@@ -120,17 +120,19 @@ RULE: tuple[float, float, float, float, int, int, int, int] = (
 def _support(x: torch.Tensor, sigma: torch.Tensor, facet_fit: float, size: int) -> torch.Tensor:
     """``z_s``: the smallest distance of ``x`` to a surface facet's extrapolation in units of its
     standard deviation (inf where no facet is a surface; -inf where no facet has all its pixels
-    valid, so no test applies). Facets: ``size`` x ``size`` (5) windows
-    centred 3 and 4
-    pixels away in the 8 directions (a narrower window fits a 3-pixel ramp through a mixed pixel as
-    well as it fits a surface)."""
+    valid, so no test applies). Facets: ``size`` x ``size`` (5) windows centred 3 and 4 pixels
+    away in the 8 directions (a narrower window fits a 3-pixel ramp through a mixed pixel as well
+    as it fits a surface)."""
     m, gx, gy, v = plane_fit(x, size, size)
     pad = 4
-    mp = F.pad(m, (pad, pad, pad, pad), value=float("nan"))
-    gxp = F.pad(gx, (pad, pad, pad, pad), value=float("nan"))
-    gyp = F.pad(gy, (pad, pad, pad, pad), value=float("nan"))
-    vp = F.pad(v, (pad, pad, pad, pad), value=float("nan"))
-    sp = F.pad(sigma, (pad, pad, pad, pad), value=float("nan"))
+    nan = float("nan")
+    # 1 / sigma at a surface facet's centre, NaN at any other (every comparison with it is False)
+    inv = torch.where(v <= facet_fit * sigma * sigma, 1.0 / sigma, torch.full_like(v, nan))
+    mp = F.pad(m, (pad, pad, pad, pad), value=nan)
+    gxp = F.pad(gx, (pad, pad, pad, pad), value=nan)
+    gyp = F.pad(gy, (pad, pad, pad, pad), value=nan)
+    ip = F.pad(inv, (pad, pad, pad, pad), value=nan)
+    fp = F.pad(torch.isfinite(v), (pad, pad, pad, pad), value=False)
     count = float(size * size)
     moment = float(size * sum([k * k for k in range(-(size // 2), size // 2 + 1)]))
     z_s = torch.full_like(x, math.inf)
@@ -140,16 +142,15 @@ def _support(x: torch.Tensor, sigma: torch.Tensor, facet_fit: float, size: int) 
             for dist in [3, 4]:
                 oy = sign * dist * uy
                 ox = sign * dist * ux
-                pred = shifted(mp, oy, ox, pad) - (
-                    oy * shifted(gyp, oy, ox, pad) + ox * shifted(gxp, oy, ox, pad)
-                )
-                s = shifted(sp, oy, ox, pad)
-                fit = shifted(vp, oy, ox, pad)
-                seen = seen | torch.isfinite(fit)
-                surface = fit <= facet_fit * s * s
-                err = (x - pred).abs()
-                unit = s * math.sqrt(1.0 + 1.0 / count + float(oy * oy + ox * ox) / moment)
-                z_s = torch.where(surface & (err < z_s * unit), err / unit, z_s)
+                pred = shifted(mp, oy, ox, pad)
+                if oy != 0:
+                    pred = pred - oy * shifted(gyp, oy, ox, pad)
+                if ox != 0:
+                    pred = pred - ox * shifted(gxp, oy, ox, pad)
+                seen = seen | shifted(fp, oy, ox, pad)
+                k = 1.0 / math.sqrt(1.0 + 1.0 / count + float(oy * oy + ox * ox) / moment)
+                z = (x - pred).abs() * (shifted(ip, oy, ox, pad) * k)
+                z_s = torch.where(z < z_s, z, z_s)
     return torch.where(seen, z_s, torch.full_like(x, -math.inf))
 
 
