@@ -40,6 +40,17 @@ def _option(text: str) -> tuple[str, object]:
     return key.strip(), parsed
 
 
+def _flying_arguments(g) -> None:
+    """``--flying`` and ``--flying-confidence`` in the stage group ``g``."""
+    g.add_argument("--flying", choices=FLYING, help="mixed pixels at depth edges (default off)")
+    g.add_argument(
+        "--flying-confidence",
+        action="store_true",
+        help="write the flying-pixel confidence map beside each output "
+        "(<output stem>.flying_confidence.npy, float32 frames x H x W)",
+    )
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "clean",
@@ -70,13 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--notch", choices=CHOICES["notch"], help="periodic stripes")
     g.add_argument("--fusion", choices=CHOICES["fusion"], help="eq. (11) amplitude fusion")
     g.add_argument("--denoise", choices=DENOISE_CHOICES, help="denoiser after the FPN stage")
-    g.add_argument("--flying", choices=FLYING, help="mixed pixels at depth edges (default off)")
-    g.add_argument(
-        "--flying-confidence",
-        action="store_true",
-        help="write the flying-pixel confidence map beside each output "
-        "(<output stem>.flying_confidence.npy, float32 frames x H x W)",
-    )
+    _flying_arguments(g)
     g.add_argument(
         "--pattern",
         metavar="FILE",
