@@ -39,6 +39,7 @@ from ..sim import (
 from .catalogue import CATALOGUE
 from .noise import decode_flat_safe, noise_law
 from .params import ParamSpec
+from .readout import apply_readout, readout_maps
 from .terms.base import Chain, Term
 
 __all__ = ["CORE_SPECS", "WRAP_BOUNDARY_SD", "DiagnosisModel", "Prediction", "predict"]
@@ -64,7 +65,10 @@ _BASELINE_FPN = "_readout_fpn"
 @dataclass
 class DiagnosisModel:
     """Camera, fitted values (``"owner.field"`` -> float), the catalogue effects in the model
-    (in the order they were added) and the closed-form profiles (``"columns"``, ``"rows"``)."""
+    (in the order they were added), the closed-form profiles (``"columns"``, ``"rows"``, the
+    baseline's read-out columns), the keys of values the recording states (``fixed``: not
+    fitted) and whether the baseline holds random column read-out offsets and gains
+    (``random_columns``, :mod:`~tof_fpn_torch.diagnosis.readout`)."""
 
     camera: Camera
     values: dict
@@ -73,6 +77,8 @@ class DiagnosisModel:
     frame_interval: float = 1.0
     impulsive_level: float = 1e-6
     fpn_scale: float = 1.0
+    fixed: frozenset = frozenset()
+    random_columns: bool = False
 
     def copy(self) -> DiagnosisModel:
         return DiagnosisModel(
@@ -83,6 +89,8 @@ class DiagnosisModel:
             self.frame_interval,
             self.impulsive_level,
             self.fpn_scale,
+            self.fixed,
+            self.random_columns,
         )
 
     def terms(self) -> list[Term]:
@@ -108,13 +116,14 @@ class DiagnosisModel:
                 s = replace(s, scale=self.fpn_scale**2)
             out.append(s)
         for t in self.terms():
-            out.extend(t.specs)
+            out.extend(s for s in t.specs if s.key not in self.fixed)
         return out
 
     def n_parameters(self) -> float:
         """Number of fitted parameters (closed-form estimates count their effective degrees of
         freedom, ``Term.effective_parameters``)."""
         extra = sum((t.effective_parameters(self.values) for t in self.terms()), 0.0)
+        extra += float(self.values.get("readout_fpn.columns_dof", 0.0))
         return len(self.specs()) + extra
 
     def with_effect(self, name: str, init: dict) -> DiagnosisModel:
@@ -140,6 +149,7 @@ class DiagnosisModel:
         a2 = math.hypot(v["readout_fpn.cos_2pi3"], v["readout_fpn.sin_2pi3"])
         th2 = math.atan2(v["readout_fpn.sin_2pi3"], v["readout_fpn.cos_2pi3"])
         cpi = v["readout_fpn.cos_pi"]
+        off, gain = readout_maps(self, self.camera.n_phases, float(v["camera.conversion_gain"]))
         return ReadoutFPN(
             frequencies=K.FPN_FREQUENCIES,
             offset_amplitudes=(a2, abs(cpi)),
@@ -148,6 +158,8 @@ class DiagnosisModel:
             sample_phase=v["readout_fpn.sample_phase"],
             random_offset=0.0,
             random_gain=0.0,
+            offset_map=off,
+            gain_map=gain,
         )
 
     def simulation_camera(self) -> Camera:
@@ -241,6 +253,7 @@ def _mean_chain(model: DiagnosisModel, v: dict, state: SimState, chain: Chain) -
     for _, name in sorted(steps):
         if name == _BASELINE_FPN:
             state.samples = _baseline_fpn(state.samples, v)
+            state.samples = apply_readout(state.samples, model, v["camera.conversion_gain"])
         else:
             state = CATALOGUE[name].apply_mean(state, v, model, chain)
     return state
@@ -313,6 +326,10 @@ def _boundary_side(mu_d, var_d, obs, r_cam: float):
     looks like."""
     lim = WRAP_BOUNDARY_SD * var_d.sqrt()
     near = (dev_to_boundary(mu_d, r_cam) < lim) & (dev_to_boundary(obs.scene_depth, r_cam) >= lim)
+    if obs.frequency is not None:
+        # the camera decodes into [0, R): where the scene lies inside its stated range, a
+        # reading across 0 / R is the decoder's fold of noise or of a bias, not a scene beyond
+        near |= obs.scene_depth < r_cam
     near &= obs.known
     alt = mu_d + r_cam * torch.round((obs.m_d - mu_d) / r_cam)
     return torch.where(near, alt, mu_d)

@@ -12,13 +12,13 @@ import torch
 from ..io import Recording, read_recording, read_scene
 from .catalogue import CATALOGUE, REVEALED_WITHOUT_SCENE
 from .data import Observations, observe
-from .fit import evaluate, fit, init_model, robust_start
+from .fit import FIT_TOL, evaluate, fit, init_model, robust_start
 from .likelihood import Context, make_context
 from .locate import Stat, bootstrap, locate, statistics
 from .model import DiagnosisModel, predict
 from .naming import MIN_DAIC, rank
 from .persist import adapt_model, load_model
-from .summary import describe_effects, fit_summary, report_content
+from .summary import baseline_summary, describe_effects, fit_summary, report_content
 from .threads import map_threads
 
 __all__ = ["BOOTSTRAP", "RETRY_GAIN", "RETRY_MAX", "Diagnosis", "diagnose"]
@@ -154,6 +154,7 @@ def diagnose(
             "after": fit_summary(current, obs, ctx, evaluate(current, obs, ctx), heldout_after),
         }
         report = report_content(effects, fits, rankings, before, after, obs, ctx, replicates)
+        report["baseline"] = baseline_summary(base)
         report["seconds"] = round(time.perf_counter() - t0, 2)
     return Diagnosis(report, base, current, obs, ctx, before, after, rankings)
 
@@ -167,13 +168,24 @@ def _baseline(obs: Observations, baseline) -> DiagnosisModel:
             baseline = load_model(baseline)
         return adapt_model(baseline, obs)
     model = init_model(obs, obs.scene())
-    if obs.scene_estimated:
-        for term in CATALOGUE.values():
+    if obs.simulator:
+        model.random_columns = True
+        obs.notes.append(
+            "the recording states that the package's simulator made it (sim_camera): its "
+            "read-out is the simulator's ReadoutFPN, whose default has random column offsets "
+            "and gains besides the periodic ones; the baseline holds them (readout_fpn.*)"
+        )
+    for term in CATALOGUE.values():
+        extra = term.baseline_stated(obs, model)
+        fixed = extra is not None
+        if extra is None and obs.scene_estimated:
             extra = term.baseline_without_scene()
-            if extra is not None:
-                values, note = extra
-                model = model.with_effect(term.name, values)
-                obs.notes.append(note)
+        if extra is not None:
+            values, note = extra
+            model = model.with_effect(term.name, values)
+            if fixed:  # what the recording states is not fitted
+                model.fixed = model.fixed | frozenset(values)
+            obs.notes.append(note)
     return model
 
 
@@ -196,7 +208,13 @@ def _fit_baseline(model: DiagnosisModel, obs: Observations):
     if bool((grown.mask_d & ~ctx.mask_d).any()) or bool((grown.mask_a & ~ctx.mask_a).any()):
         ctx = grown
         model, _ = fit(model, obs, ctx)
-    start_values = robust_start(init, obs, ctx, model)
+    start_values, robust = robust_start(init, obs, ctx, model)
+    if robust is not None:
+        # the fit on all pixels can settle in a basin the outliers bent (the noise law and the
+        # read-out columns absorbing a misfit); from the robust fit it may reach a better one
+        alt, nll_alt = fit(robust, obs, ctx)
+        if nll_alt < evaluate(model, obs, ctx) - FIT_TOL:
+            model = alt
     if not bool(ctx.mask_d.any()):
         raise ValueError("no pixel has a clear enough signal for the depth likelihood")
     return model, ctx, start_values

@@ -11,7 +11,14 @@ from .likelihood import n_observations
 from .locate import locate
 from .model import predict
 
-__all__ = ["describe_effects", "explained", "fit_summary", "located", "report_content"]
+__all__ = [
+    "baseline_summary",
+    "describe_effects",
+    "explained",
+    "fit_summary",
+    "located",
+    "report_content",
+]
 
 
 def fit_summary(model, obs, ctx, nll_all: float, heldout: float) -> dict:
@@ -101,4 +108,28 @@ def explained(name: str, before: dict, after: dict) -> list[dict]:
             "inside_null_band": bool(a.band()[0] <= a.value <= a.band()[1]) or a.p > 0.05,
         }
         out.append(b)
+    return out
+
+
+def baseline_summary(model) -> dict:
+    """What the fitted baseline holds besides the issue's core: the catalogue terms the
+    recording states (``stated``: their values are not fitted) or that an estimated scene
+    implies, and the read-out pattern (periodic offsets in e-, and where the recording states
+    the simulator's read-out, the random column offsets in DN and gains)."""
+    v = model.values
+    out = {
+        "terms": list(model.effects),
+        "stated": sorted(model.fixed),
+        "readout_periodic_e": {
+            k.split(".")[1]: round(float(v[k]), 4)
+            for k in ("readout_fpn.cos_2pi3", "readout_fpn.sin_2pi3", "readout_fpn.cos_pi")
+        },
+        "random_columns": model.random_columns,
+    }
+    if model.random_columns:
+        out["readout_random_columns"] = {
+            "offset_rms_dn": round(float(v.get("readout_fpn.random_offset_rms", 0.0)), 4),
+            "gain_rms": round(float(v.get("readout_fpn.random_gain_rms", 0.0)), 6),
+            "effective_parameters": round(float(v.get("readout_fpn.columns_dof", 0.0)), 2),
+        }
     return out

@@ -50,6 +50,9 @@ class ReadoutFPN(Term):
         random_gain: ``sigma_g``, relative rms of the non-periodic per-column gains (>= 0).
         axis: ``"columns"`` or ``"rows"``.
         seed: seed of the fixed random part (the same pattern in every frame).
+        offset_map: optional explicit offsets added to ``o_n(x)``, e-, shape (N, length) (e.g.
+            a measured or fitted pattern); None: none.
+        gain_map: optional explicit gains added to ``g_n(x)``, relative, shape (N, length).
     """
 
     frequencies: tuple[float, ...] = K.FPN_FREQUENCIES
@@ -61,6 +64,8 @@ class ReadoutFPN(Term):
     random_gain: float = 0.0005
     axis: str = "columns"
     seed: int = 20150413
+    offset_map: object = None
+    gain_map: object = None
     name: str = field(default="readout_fpn", init=False)
 
     def __post_init__(self) -> None:
@@ -124,6 +129,18 @@ class ReadoutFPN(Term):
             gain = gain + _num(c, p) * p
         offsets = off * w_n + _num(self.random_offset, xi_o) * xi_o
         gains = 1.0 + gain * w_n + _num(self.random_gain, xi_g) * xi_g
+        for nm, extra in (("offset_map", self.offset_map), ("gain_map", self.gain_map)):
+            if extra is None:
+                continue
+            m = torch.as_tensor(extra).to(device=device, dtype=dtype)
+            if tuple(m.shape) != (n, length):
+                raise ValueError(
+                    f"ReadoutFPN.{nm} must be (N, length) = ({n}, {length}), got {list(m.shape)}"
+                )
+            if nm == "offset_map":
+                offsets = offsets + m
+            else:
+                gains = gains + m
         return offsets, gains
 
     def apply(self, state: SimState) -> SimState:

@@ -143,6 +143,14 @@ class Term:
         of freedom)."""
         return 0.0
 
+    # --- what the recording states -----------------------------------------------------------------
+
+    def baseline_stated(self, obs, model):
+        """``(values, note)`` when the recording states this physics of its camera (e.g. its
+        full well), so that the baseline holds it from the start and it is never a finding (the
+        note goes into the report), else None. ``model``: the baseline with its starting values."""
+        return None
+
     # --- the baseline without a scene -------------------------------------------------------------
 
     def baseline_without_scene(self):
