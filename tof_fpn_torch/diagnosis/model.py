@@ -39,7 +39,7 @@ from ..sim import (
 from .catalogue import CATALOGUE
 from .noise import decode_flat_safe, noise_law
 from .params import ParamSpec
-from .readout import apply_readout, readout_maps
+from .readout import READOUT_KEYS, apply_readout, readout_maps
 from .terms.base import Chain, Term
 
 __all__ = ["CORE_SPECS", "WRAP_BOUNDARY_SD", "DiagnosisModel", "Prediction", "predict"]
@@ -123,7 +123,10 @@ class DiagnosisModel:
         """Number of fitted parameters (closed-form estimates count their effective degrees of
         freedom, ``Term.effective_parameters``)."""
         extra = sum((t.effective_parameters(self.values) for t in self.terms()), 0.0)
-        extra += float(self.values.get("readout_fpn.columns_dof", 0.0))
+        # the read-out columns count once: as a term's profiles, or as the baseline's own
+        owned = any(set(READOUT_KEYS) & set(t.profile_keys) for t in self.terms())
+        if READOUT_KEYS[0] in self.profiles and not owned:
+            extra += float(self.values.get("readout_fpn.columns_dof", 0.0))
         return len(self.specs()) + extra
 
     def with_effect(self, name: str, init: dict) -> DiagnosisModel:
@@ -194,6 +197,7 @@ class DiagnosisModel:
 class Prediction:
     """Per-pixel (H, W) model predictions (float64): depth mean / sd per frame, amplitude mean /
     sd per frame (Rician), ``tau_a`` (sd of the pixel-gain random effect on the amplitude mean),
+    ``tau_d`` (sd of a random effect fixed over time on the depth mean, m; 0.0: none),
     the noise-free amplitude ``a0`` and offset ``offset`` (DN), ``s`` (sd of one component of
     ``(2/N) X_1``), ``wrap`` (R when the model folds the depth, else None)."""
 
@@ -206,6 +210,7 @@ class Prediction:
     offset: torch.Tensor
     s: torch.Tensor
     wrap: object = None
+    tau_d: torch.Tensor | float = 0.0
 
 
 def _baseline_fpn(samples: torch.Tensor, v: dict) -> torch.Tensor:
@@ -291,7 +296,9 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
         mu_d = _boundary_side(mu_d, var_d, obs, r_cam)
     sd_a = torch.sqrt(sd_a**2 + obs.q_amp**2 / 12.0)
     tau = _amplitude_tau(model, v, mu_a)
-    return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap)
+    k = 4.0 * math.pi * f / K.SPEED_OF_LIGHT_AIR
+    tau_d = _random_sd([t.depth_mean_sd(v, a0, k) for t in model.terms()])
+    return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap, tau_d)
 
 
 def _reading(depth: torch.Tensor, d_true: torch.Tensor, r_cam: float) -> torch.Tensor:
@@ -337,7 +344,13 @@ def _boundary_side(mu_d, var_d, obs, r_cam: float):
 
 def _amplitude_tau(model: DiagnosisModel, v: dict, mu_a):
     """Sd of the random effects on the amplitude means (``Term.amplitude_sd``; 0.0: none)."""
-    sds = [x for x in (t.amplitude_sd(v, mu_a) for t in model.terms()) if x is not None]
+    return _random_sd([t.amplitude_sd(v, mu_a) for t in model.terms()])
+
+
+def _random_sd(sds: list):
+    """The sd of the sum of independent random effects of sds ``sds`` (None: a term without
+    one; 0.0 when there is none)."""
+    sds = [x for x in sds if x is not None]
     if not sds:
         return 0.0
     return sds[0] if len(sds) == 1 else torch.sqrt(sum(x * x for x in sds))

@@ -34,8 +34,9 @@ __all__ = ["READOUT_KEYS", "OUTLIER_SIGMA", "apply_readout", "readout_maps", "up
 #: model does not know yet) are left out of the column estimates.
 OUTLIER_SIGMA: float = 5.0
 #: keys of ``DiagnosisModel.profiles`` the baseline's read-out pattern owns: the column offsets
-#: ``O`` (2, W: real and imaginary part, DN) and gains ``G`` of the offset level (2, W)
-READOUT_KEYS: tuple[str, str] = ("readout_offset", "readout_gain")
+#: ``O`` (2, W: real and imaginary part, DN), gains ``G`` of the offset level (2, W) and the
+#: gains of the amplitude (2, W: the mean gain ``M`` and the second harmonic ``q``)
+READOUT_KEYS: tuple[str, str, str] = ("readout_offset", "readout_gain", "readout_amp_gain")
 
 
 def _harmonic(prof_re, prof_im, n: int, k: int, scale: float = 1.0) -> torch.Tensor:
@@ -51,7 +52,12 @@ def _maps(model, n: int):
     if off is None:
         return None
     gain = model.profiles[READOUT_KEYS[1]]
-    return _harmonic(off[0], off[1], n, 1), _harmonic(gain[0], gain[1], n, 1)
+    gm = _harmonic(gain[0], gain[1], n, 1)
+    amp = model.profiles.get(READOUT_KEYS[2])
+    if amp is not None:
+        zero = torch.zeros_like(amp[1])
+        gm = gm + amp[0].view(1, -1) + _harmonic(amp[1], zero, n, 2)
+    return _harmonic(off[0], off[1], n, 1), gm
 
 
 def apply_readout(samples: torch.Tensor, model, gain_e) -> torch.Tensor:
@@ -88,16 +94,26 @@ def _variance(beta: torch.Tensor, cov: torch.Tensor) -> float:
     return s2
 
 
-#: the coefficient groups sharing a variance: offsets O, offset-level gains G
-_GROUPS = ((0, 1), (2, 3))
+#: the coefficient groups sharing a variance: offsets O, offset-level gains G, the amplitude's
+#: mean gain M, its second-harmonic gain q
+_GROUPS = ((0, 1), (2, 3), (4,), (5,))
+_NC = 6
 
 
-def _loadings(phi, bn):
-    """Radial and tangential loadings (H, W, 4) of the 4 coefficients (O re / im, G re / im
-    times ``bn``) on the rotated residual."""
+def _loadings(phi, bn, an, n: int):
+    """Radial and tangential loadings (H, W, 6) of the 6 coefficients (O re / im; G re / im
+    times ``bn``, the offset level over its median; M and q times ``an``, the amplitude over
+    its median) on the rotated residual. A gain ``q cos(2 theta_n)`` on the samples adds ``c q
+    conj(z)`` to the phasor ``z`` (``c = 1`` for N = 4, where the harmonics ``-1`` and ``3``
+    alias, else 1/2) with the decoder's sample convention ``B + A cos(phi + theta_n)``: rotated
+    by ``-phi``, ``c q A e^{-2 j phi}``. The loadings are checked against the decoder in
+    ``tests/test_diagnosis_forms.py``."""
     cs, sn = torch.cos(phi), torch.sin(phi)
-    rad = torch.stack([cs, sn, bn * cs, bn * sn], -1)
-    tan = torch.stack([-sn, cs, -bn * sn, bn * cs], -1)
+    c2, s2 = torch.cos(2 * phi), torch.sin(2 * phi)
+    h = 1.0 if n == 4 else 0.5
+    zero = torch.zeros_like(phi)
+    rad = torch.stack([cs, sn, bn * cs, bn * sn, an, h * an * c2], -1)
+    tan = torch.stack([-sn, cs, -bn * sn, bn * cs, zero, -h * an * s2], -1)
     return rad, tan
 
 
@@ -123,15 +139,19 @@ def update_readout(model, obs, ctx, pred, sel: str = "all"):
     k = 4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR
     m = ctx.mask_d & ctx.select(sel)
     with torch.no_grad():
-        b = pred.offset.detach()
+        b, a0 = pred.offset.detach(), pred.a0.detach()
         bref = float(b[m].median()) if bool(m.any()) else 1.0
-        rad, tan = _loadings(k * pred.mu_d.detach(), b / max(bref, 1e-12))
+        aref = max(float(a0[m].median()) if bool(m.any()) else 1.0, 1e-12)
+        n_ph = model.camera.n_phases
+        rad, tan = _loadings(k * pred.mu_d.detach(), b / max(bref, 1e-12), a0 / aref, n_ph)
         ra, ta, va, vt, inlier = _residuals(model, obs, pred, k)
         m = m & inlier
-        old = torch.zeros(4, w, dtype=torch.float64)
+        old = torch.zeros(_NC, w, dtype=torch.float64)
         if READOUT_KEYS[0] in model.profiles:
             old[:2] = model.profiles[READOUT_KEYS[0]]
-            old[2:] = model.profiles[READOUT_KEYS[1]] * bref
+            old[2:4] = model.profiles[READOUT_KEYS[1]] * bref
+            if READOUT_KEYS[2] in model.profiles:
+                old[4:] = model.profiles[READOUT_KEYS[2]] * aref
         # the old pattern is put back (its loadings times its coefficients)
         ra = ra + (rad * old.T.unsqueeze(0)).sum(-1)
         ta = ta + (tan * old.T.unsqueeze(0)).sum(-1)
@@ -141,12 +161,12 @@ def update_readout(model, obs, ctx, pred, sel: str = "all"):
         s = s + torch.einsum("hwi,hwj->wij", tan * wt.unsqueeze(-1), tan)
         y = torch.einsum("hwi,hw->wi", rad * wr.unsqueeze(-1), ra)
         y = y + torch.einsum("hwi,hw->wi", tan * wt.unsqueeze(-1), ta)
-        eye = torch.eye(4, dtype=torch.float64)
+        eye = torch.eye(_NC, dtype=torch.float64)
         scale = s.diagonal(dim1=1, dim2=2).amax(1).clamp_min(1e-30).view(w, 1, 1)
         cov = torch.linalg.inv(s + 1e-9 * scale * eye)
         beta = (cov @ y.unsqueeze(-1)).squeeze(-1)
         dcov = cov.diagonal(dim1=1, dim2=2)
-        lam = torch.full((4,), 1e30, dtype=torch.float64)
+        lam = torch.full((_NC,), 1e30, dtype=torch.float64)
         s2 = []
         for idx in _GROUPS:
             v = _variance(beta[:, list(idx)], dcov[:, list(idx)])
@@ -158,8 +178,10 @@ def update_readout(model, obs, ctx, pred, sel: str = "all"):
         dof = float(torch.linalg.solve(a, s).diagonal(dim1=1, dim2=2).sum())
     out = model.copy()
     out.profiles[READOUT_KEYS[0]] = blup[:, :2].T.contiguous()
-    out.profiles[READOUT_KEYS[1]] = (blup[:, 2:] / bref).T.contiguous()
+    out.profiles[READOUT_KEYS[1]] = (blup[:, 2:4] / bref).T.contiguous()
+    out.profiles[READOUT_KEYS[2]] = (blup[:, 4:] / aref).T.contiguous()
     out.values["readout_fpn.columns_dof"] = dof
     out.values["readout_fpn.random_offset_rms"] = math.sqrt(s2[0])
     out.values["readout_fpn.random_gain_rms"] = math.sqrt(s2[1]) / max(bref, 1e-12)
+    out.values["readout_fpn.amplitude_gain_rms"] = math.sqrt(s2[2] + s2[3]) / aref
     return out

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from contextlib import contextmanager
@@ -10,7 +11,7 @@ from dataclasses import dataclass, field
 import torch
 
 from ..io import Recording, read_recording, read_scene
-from .catalogue import CATALOGUE, REVEALED_WITHOUT_SCENE
+from .catalogue import CATALOGUE, REVEALED_WITHOUT_SCENE, implemented
 from .data import Observations, observe
 from .fit import FIT_TOL, evaluate, fit, init_model, robust_start
 from .likelihood import Context, make_context
@@ -222,12 +223,19 @@ def _fit_baseline(model: DiagnosisModel, obs: Observations):
 
 def _forward(base, base_train, ranking, obs, ctx, before, start_values, only, max_effects):
     """Forward rounds from the first ``ranking``: the best significant candidate is added and
-    the model refitted, until none is significant or ``max_effects`` are in. Returns the model,
-    the last fit on the fitting half, the effects added (report entries) and every round's
-    ranking (without the fitted models)."""
+    the model refitted, until none is significant or ``max_effects`` effects are named. Returns
+    the model, the last fit on the fitting half, the effects named (report entries; ``terms``:
+    the catalogue terms, the forms, that model each) and every round's ranking (without the
+    fitted models).
+
+    One effect, one name: from the second round the other forms (flexible members) of the
+    effects already named are candidates too. A further effect is named only when its held-out
+    gain is significant and larger than the best held-out gain of those forms (a refit of the
+    named effects with more freedom); when a form of a named effect is the best significant
+    candidate it joins that effect (no new name)."""
     rankings, effects = [], []
     current, train_model = base, base_train
-    for _ in range(max_effects):
+    while len(effects) < max_effects and len(rankings) < 2 * max_effects:
         rankings.append([{k: v for k, v in r.items() if k != "model"} for r in ranking])
         best = next((r for r in ranking if r["significant"]), None)
         if best is None:
@@ -235,34 +243,68 @@ def _forward(base, base_train, ranking, obs, ctx, before, start_values, only, ma
         name = best["name"]
         nll_cur = evaluate(current, obs, ctx)
         new, nll_new = fit(best["model"], obs, ctx)
-        effects.append(
-            {
-                "name": name,
-                "score": best["score"],
-                "delta_aic": round(
-                    2 * (new.n_parameters() - current.n_parameters()) - 2 * (nll_cur - nll_new),
-                    3,
-                ),
-                "heldout_gain": best["score"],
-                "train_delta_aic": best["delta_aic"],
-            }
-        )
+        daic = 2 * (new.n_parameters() - current.n_parameters()) - 2 * (nll_cur - nll_new)
+        named = next((e for e in effects if e["name"] == CATALOGUE[name].effect), None)
+        if named is not None:  # another form of a named effect: it joins it
+            named["terms"].append(name)
+        else:
+            effects.append(
+                {
+                    "name": CATALOGUE[name].effect,
+                    "terms": [name],
+                    "score": best["score"],
+                    "delta_aic": round(daic, 3),
+                    "heldout_gain": best["score"],
+                    "train_delta_aic": best["delta_aic"],
+                }
+            )
         current = new
         train_model = best["model"]
         if len(effects) == max_effects:
             break
-        # the next round tries the terms that gained something in this one (a term that
-        # did not help before the winner was modelled is not re-fitted)
-        again = [
-            r["name"]
-            for r in ranking
-            if r["name"] != name and r["score"] is not None and r["score"] >= RETRY_GAIN
-        ][:RETRY_MAX]
-        again += [n for n in _signalled(current, obs, ctx, before) if n not in again]
-        if only is not None:
-            again = [n for n in again if n in only]
-        ranking, train_model = rank(current, obs, ctx, only=again, start_values=start_values)
+        ranking, train_model = rank(
+            current,
+            obs,
+            ctx,
+            only=_next_candidates(ranking, name, current, obs, ctx, before, only),
+            start_values=start_values,
+        )
+        ranking = _one_name(ranking, effects)
     return current, train_model, effects, rankings
+
+
+def _next_candidates(ranking, name, current, obs, ctx, before, only) -> list[str]:
+    """The terms the next round tries: those that gained something in this one (a term that did
+    not help before the winner was modelled is not re-fitted), those the located statistics
+    point at, and the other forms of the effects in the model."""
+    again = [
+        r["name"]
+        for r in ranking
+        if r["name"] != name and r["score"] is not None and r["score"] >= RETRY_GAIN
+    ][:RETRY_MAX]
+    again += [n for n in _signalled(current, obs, ctx, before) if n not in again]
+    named = {CATALOGUE[n].effect for n in current.effects}
+    again += [
+        n
+        for n in implemented()
+        if CATALOGUE[n].effect in named and n not in current.effects and n not in again
+    ]
+    if only is not None:
+        again = [n for n in again if n in only]
+    return again
+
+
+def _one_name(ranking: list, effects: list) -> list:
+    """The ranking with a new effect's candidates significant only when they gain more than
+    every form of the effects already named (which are ranked as they are)."""
+    named = {e["name"] for e in effects}
+    forms = [r["score"] for r in ranking if CATALOGUE[r["name"]].effect in named]
+    bar = max([s for s in forms if s is not None], default=-math.inf)
+    for r in ranking:
+        if CATALOGUE[r["name"]].effect not in named and r["significant"] and r["score"] <= bar:
+            r["significant"] = False
+            r["below_named_forms"] = True
+    return ranking
 
 
 def _signalled(model, obs, ctx, before: dict) -> list[str]:
@@ -281,6 +323,13 @@ def _signalled(model, obs, ctx, before: dict) -> list[str]:
     ]
 
 
+def _without(model, names: list[str]):
+    """``model`` without the terms ``names``."""
+    for n in names:
+        model = model.without(n)
+    return model
+
+
 def _prune(model, effects: list, obs, ctx):
     """Backward elimination, then the order: each term is dropped in turn from the final model
     (the rest refitted on all pixels); the one whose loss costs least is removed while that
@@ -291,7 +340,7 @@ def _prune(model, effects: list, obs, ctx):
     nll_cur = evaluate(model, obs, ctx)
     drops: list = []
     while len(effects) > 1:
-        fits = map_threads(lambda e, m=model: fit(m.without(e["name"]), obs, ctx), effects)
+        fits = map_threads(lambda e, m=model: fit(_without(m, e["terms"]), obs, ctx), effects)
         drops = [
             (2 * (wo.n_parameters() - model.n_parameters()) + 2 * (nll_wo - nll_cur), e, wo, nll_wo)
             for e, (wo, nll_wo) in zip(effects, fits, strict=True)

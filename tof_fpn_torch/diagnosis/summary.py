@@ -3,6 +3,8 @@ and what each named effect is and explains."""
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from .catalogue import CATALOGUE
@@ -12,6 +14,7 @@ from .locate import locate
 from .model import predict
 
 __all__ = [
+    "also_consistent",
     "baseline_summary",
     "describe_effects",
     "explained",
@@ -55,17 +58,22 @@ def describe_effects(effects: list, model, obs, ctx, before: dict, after: dict) 
     with torch.no_grad():
         pred = predict(model, obs, scene=ctx.scene)
     for e in effects:
-        e["params"] = CATALOGUE[e["name"]].describe(model, obs, pred)
-        e["where"] = explained(e["name"], before, after)
+        terms = e.get("terms", [e["name"]])
+        e["params"] = {}
+        for t in terms:
+            e["params"].update(CATALOGUE[t].describe(model, obs, pred))
+        e["where"] = explained(terms[0], before, after)
 
 
 def report_content(effects, fits, rankings, before, after, obs, ctx, replicates: int) -> dict:
     """The ``report.json`` content (without ``seconds``)."""
     return {
         "effects": [
-            {k: e[k] for k in ("name", "score", "delta_aic", "params", "where")} for e in effects
+            {k: e[k] for k in ("name", "terms", "score", "delta_aic", "params", "where") if k in e}
+            for e in effects
         ],
         "verdict": [e["name"] for e in effects] or ["none"],
+        "also_consistent_with": also_consistent(effects, rankings),
         "fit": fits,
         "located_before": located(before, replicates),
         "located_after": located(after, replicates),
@@ -85,6 +93,21 @@ def report_content(effects, fits, rankings, before, after, obs, ctx, replicates:
         },
         "bootstrap_replicates": replicates,
     }
+
+
+def also_consistent(effects: list, rankings: list) -> list[str]:
+    """The effects not named whose candidates were significant in some round (a term that gains
+    on its own but not beyond the effects named: it stands in for their misfit, or it is
+    another reading of the same data), strongest first."""
+    named = {e["name"] for e in effects}
+    out: dict[str, float] = {}
+    for ranking in rankings:
+        for r in ranking:
+            eff = CATALOGUE[r["name"]].effect
+            ok = r["significant"] or r.get("below_named_forms", False)
+            if ok and eff not in named and r["score"] is not None:
+                out[eff] = max(out.get(eff, -math.inf), r["score"])
+    return sorted(out, key=lambda k: -out[k])
 
 
 def explained(name: str, before: dict, after: dict) -> list[dict]:

@@ -26,7 +26,7 @@ from .. import constants as K
 from .camera import _as_float, _check_range
 from .terms import Photons, ReadNoise, ShotNoise, SimState, Term, _num, _owned
 
-__all__ = ["ADC", "ImpulsivePixels", "ReadoutFPN", "default_terms"]
+__all__ = ["ADC", "ImpulsivePixels", "PixelOffset", "ReadoutFPN", "default_terms"]
 
 
 _AXES = ("columns", "rows")
@@ -156,6 +156,39 @@ class ReadoutFPN(Term):
             state.samples = s.mul_(gain).add_(off)
         else:
             state.samples = torch.addcmul(off, s, gain)
+        return state
+
+
+@dataclass
+class PixelOffset(Term):
+    """A fixed complex offset per pixel on the decoded phasor (dark-signal non-uniformity of the
+    demodulating pixel: the two taps' charges do not cancel): sample ``n`` of pixel ``p`` gets
+    ``c_p cos(2 pi n / N) + d_p sin(2 pi n / N)`` e-, so ``(2 / N) X_1`` moves by ``c_p - j
+    d_p``; ``c_p``, ``d_p`` i.i.d. N(0, ``sd``^2), the same in every frame (from ``seed``).
+    Its depth error is ``|O| / A`` radians at most: it grows as the amplitude falls; the
+    amplitude moves by the offset's radial part (not in proportion to the amplitude, as a
+    gain would).
+
+    Args:
+        sd: rms of each component (e-, >= 0).
+        seed: seed of the map.
+    """
+
+    sd: float = 0.0
+    seed: int = 11
+    name: str = field(default="pixel_offset", init=False)
+
+    def __post_init__(self) -> None:
+        _check_range(self.sd, "PixelOffset.sd", 0.0, strict=False, unit=" e-")
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        _, n, h, w = s.shape
+        gen = torch.Generator().manual_seed(int(self.seed))
+        c = torch.randn((2, h, w), generator=gen, dtype=torch.float64).to(s.device, s.dtype)
+        th = torch.arange(n, device=s.device, dtype=s.dtype).view(1, n, 1, 1) * (2 * math.pi / n)
+        off = c[0].view(1, 1, h, w) * torch.cos(th) + c[1].view(1, 1, h, w) * torch.sin(th)
+        state.samples = s + _num(self.sd, s) * off
         return state
 
 
