@@ -261,7 +261,12 @@ def parse():
     ap.add_argument("--effects", nargs="*", default=list(fsg.EFFECTS))
     ap.add_argument("--forms", nargs="*", default=list(fsg.FORMS))
     ap.add_argument("--factors", nargs="*", type=float, default=list(FACTORS))
-    ap.add_argument("--per-cell", type=int, default=6, help="recordings per effect, form, factor")
+    ap.add_argument(
+        "--per-cell",
+        type=int,
+        default=None,
+        help="recordings per effect, form, factor (6; pilot 1)",
+    )
     ap.add_argument("--nulls", type=int, default=24)
     ap.add_argument("--seed-offset", type=int, default=None, help="default 70000 (pilot 10000)")
     ap.add_argument("--size", default=f"{H}x{W}", help="HxW")
@@ -281,6 +286,8 @@ def main() -> None:
     if a.calibrate:
         print(json.dumps(calibrate(size), indent=1))
         return
+    if a.per_cell is None:
+        a.per_cell = 1 if a.pilot else 6
     if a.pilot:
         offset = DEV_SEEDS if a.seed_offset is None else a.seed_offset
         eff = None if a.pilot[0] == "none" else a.pilot[0]

@@ -63,6 +63,16 @@ def test_generate_is_deterministic_and_null_reads_the_scene():
     assert a["meta"]["modulation_frequency_hz"] == 20e6 and a["meta"]["n_phases"] == 4
 
 
+@pytest.mark.parametrize("kind", g.SCENES)
+def test_null_recordings_read_every_scene(kind):
+    d, r, info = _scene(kind, 4)
+    out = g.generate(d, r, frames=T, seed=2, info=info)
+    assert np.isnan(out["depth"]).mean() < 0.001
+    err = np.nanmedian(out["depth"], axis=0) - d
+    assert np.median(np.abs(err)) < 0.05 and np.abs(err).max() < 0.75
+    assert out["truth"]["effect"] is None and "snr" not in out["truth"]
+
+
 @pytest.mark.parametrize("form", g.FORMS)
 def test_amplitude_bias_follows_its_form_and_falls_with_amplitude(form):
     a, n, d, r = _diff("amplitude_bias", form, 40.0)
