@@ -13,8 +13,8 @@ Camera (pinhole, 70 deg horizontal field; x right, y down, z forward; depth = ra
     the first DFT bin (depth in [0, R), R = c_air / (2 f); amplitude in DN).
 
 Scene models (:func:`scene_model`; depth within 0.35-6.6 m, reflectance in [0.05, 0.95]):
-    corner    room corner: floor, back wall and one side wall seen by a pitched camera; checker
-              floor, striped back wall, smooth-noise side wall
+    corner    room corner: floor, back wall, one side wall and a cabinet against the back wall
+              seen by a pitched camera; checker floor, striped back wall, smooth-noise side wall
     steps     boxes (steps) standing on a floor in front of a checker back wall, noise texture
     solids    spheres and upright cylinders on a floor in front of a wall, striped solids
     polygons  piecewise-planar random polygons (Voronoi cells, each a tilted plane) with a
@@ -180,16 +180,17 @@ def _room(rng, h, w, pitch_deg):
 def _corner(rng, h, w):
     r, hf, zb = _room(rng, h, w, (5, 15))
     side = rng.choice([-1.0, 1.0]) * rng.uniform(1.1, 2.0)
-    hits = np.stack(
-        [_plane_hit(r, (0, 1, 0), hf), _plane_hit(r, (0, 0, 1), zb), _plane_hit(r, (1, 0, 0), side)]
-    )
+    x0 = rng.uniform(-0.9, 0.2)  # a cabinet against the back wall (depth edges)
+    cabinet = (x0, hf - rng.uniform(0.6, 1.2), zb - rng.uniform(0.4, 0.7)), (x0 + 0.7, hf, zb)
+    hits = [_plane_hit(r, (0, 1, 0), hf), _plane_hit(r, (0, 0, 1), zb)]
+    hits = np.stack([*hits, _plane_hit(r, (1, 0, 0), side), _box_hit(r, *cabinet)])
     which = hits.argmin(0)
     d = hits.min(0)
     p = r * d[..., None]
     floor = 0.25 + 0.45 * _checker(p[..., 0], p[..., 2], rng.uniform(0.3, 0.6))
     wall = 0.3 + 0.4 * (np.sin(2 * np.pi * p[..., 0] / rng.uniform(0.2, 0.5)) > 0)
     side_t = 0.5 + 0.15 * _smooth_noise(rng, (h, w), 4.0)
-    rho = np.choose(which, [floor, wall, side_t])
+    rho = np.choose(which, [floor, wall, side_t, np.full((h, w), rng.uniform(0.2, 0.8))])
     return (*_finish(d, rho, rng), {"floor_normal": _floor_normal(r), "floor_m": hf})
 
 
@@ -829,8 +830,9 @@ def _visibility(ctx, clean, effect, form, m, truth, sd_add) -> dict:
         else:
             delta, sd, unit, scale = (a1 / a0 - 1).mean(0), rel_sd.mean(0), "relative RMS", 1.0
         mag = np.abs(delta)
-        aff = mag >= 0.1 * np.quantile(mag, 0.99)
-        aff &= mag > 0
+        aff = (mag >= 0.1 * np.quantile(mag, 0.99)) & (mag > 0)
+        if not aff.any():
+            return {"effect_size": 0.0, "effect_size_unit": unit, "affected_share": 0.0, "snr": 0.0}
         z = mag[aff] / (sd[aff] / math.sqrt(t))
         out = {
             "effect_size": float(np.sqrt(np.mean(delta[aff] ** 2)) * scale),

@@ -42,6 +42,7 @@ def test_scene_models_are_valid_and_deterministic(kind):
         assert rho.min() >= 0.05 and rho.max() <= 0.95
         assert np.isclose(np.linalg.norm(info["floor_normal"]), 1.0)
         assert np.std(d) > 0.2  # not a flat card
+        assert g._edge_neighbour(d)[1].mean() > 0.003  # depth edges for flying pixels
         d2, rho2, _ = g.scene_model(kind, H, W, seed)
         assert np.array_equal(d, d2) and np.array_equal(rho, rho2)
     other = g.scene_model(kind, H, W, 7)[0]
