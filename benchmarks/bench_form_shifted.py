@@ -55,9 +55,9 @@ DETECTION: dict[tuple[str, str], float] = {
     ("saturation", "A"): 0.01,  # share of pixels over the well / knee
     ("saturation", "B"): 0.01,
     ("flying_pixels", "A"): 0.25,  # share of depth-edge pixels mixed
-    ("flying_pixels", "B"): 0.065,  # footprint excess width, px
+    ("flying_pixels", "B"): 0.035,  # footprint excess width, px
     ("multipath", "A"): 0.08,  # specular share
-    ("multipath", "B"): 0.02,  # median relayed / direct light
+    ("multipath", "B"): 0.025,  # median relayed / direct light
     ("noise_floor", "A"): 31.0,  # mm RMS
     ("noise_floor", "B"): 23.0,
     ("phase_wrapping", "A"): 0.01,  # share of the scene beyond the range

@@ -46,8 +46,9 @@ Effects and forms (``magnitude`` in the unit given; ``truth["effect_size"]`` in 
                       well / knee (the brightest: high reflectance, near)
     flying_pixels     A: depth-edge pixels (a 4-neighbour > 0.15 m away) mix their samples with
                       that neighbour's at a random share u ~ U(0, 1); magnitude: share of edge
-                      pixels mixed. B: a box footprint 1 + m px wide offset by a sub-pixel shift,
-                      area fractions of the 3 x 3 neighbourhood; magnitude m (px)
+                      pixels mixed. B: a box footprint 1 + m px wide offset by a sub-pixel shift
+                      (up to m / 4 px), area fractions of the 3 x 3 neighbourhood; magnitude m
+                      (px)
     multipath         A: a specular second path off the floor plane (mirror image of the camera),
                       both ways, strength magnitude * (d / |P - C'|)^2 of the direct light;
                       magnitude: specular share. B: a two-bounce path from one wall patch
@@ -518,7 +519,7 @@ def _flying(ctx, q, form, m, rng, truth) -> np.ndarray:
         truth.update(edge_share=float(edge.mean()), mixed_share=float(mixed.mean()))
         ctx["flying_mix"] = (mixed, nb, u)
         return (1 - u) * q + u * qn
-    sy, sx = rng.uniform(-0.25, 0.25, 2)
+    sy, sx = rng.uniform(-0.25, 0.25, 2) * m  # sub-pixel edge positions of the footprint
     wy, wx = _box_weights(m, sy), _box_weights(m, sx)
     qp = np.pad(q, ((0, 0), (0, 0), (1, 1), (1, 1)), mode="edge")
     out = np.zeros_like(q)
