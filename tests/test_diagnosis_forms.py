@@ -101,3 +101,34 @@ def test_pixel_offset_moves_the_phasor():
     assert torch.equal(out, again)
     with pytest.raises(ValueError):
         PixelOffset(sd=-1.0)
+
+
+def _r(name, score, sig=True):
+    return {"name": name, "score": score, "significant": sig}
+
+
+def test_one_effect_one_name():
+    """From the second round a new effect is significant only when it gains more than every form
+    of the effects already named; what it would have been is listed as consistent."""
+    from tof_fpn_torch.diagnosis.run import _one_name
+    from tof_fpn_torch.diagnosis.summary import also_consistent
+
+    effects = [{"name": "amplitude_bias", "terms": ["amplitude_bias"]}]
+    ranking = [
+        _r("amplitude_bias_shape", 60.0),
+        _r("pixel_gain", 40.0),
+        _r("vignetting", 80.0),
+        _r("multipath", 5.0, sig=False),
+    ]
+    out = _one_name([dict(r) for r in ranking], effects)
+    sig = {r["name"]: r["significant"] for r in out}
+    assert sig == {
+        "amplitude_bias_shape": True,  # a form of the named effect: joins it
+        "pixel_gain": False,  # gains less than the named effect's other form
+        "vignetting": True,  # gains more: a second effect
+        "multipath": False,
+    }
+    assert also_consistent(effects, [out]) == ["vignetting", "pixel_gain"]
+    # without a form of the named effect in the ranking nothing is held back
+    out = _one_name([dict(r) for r in ranking[1:]], effects)
+    assert [r["significant"] for r in out] == [True, True, False]

@@ -144,10 +144,9 @@ def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all")
     mixed = next((r for r in (t.edge_mixture(v) for t in terms) if r is not None), None)
     out = _nll_frames(obs, ctx, pred, sel, per_frame, rate)
     if mixed is not None and rate is None:
-        clip = None
-        if "saturation" in model.effects:
-            lv, g = v["saturation.level"], v["camera.conversion_gain"]
-            clip = float(torch.as_tensor(lv / g).detach())  # it selects pixels: no graph
+        clip = next((c for c in (t.clip_level(v) for t in terms) if c is not None), None)
+        if clip is not None:  # it selects pixels: no graph
+            clip = float(torch.as_tensor(clip).detach())
         out = out + _edge_mixture(
             obs, ctx, pred, mixed, sel, model.camera.modulation_frequency, clip
         )

@@ -340,7 +340,9 @@ def _prune(model, effects: list, obs, ctx):
     nll_cur = evaluate(model, obs, ctx)
     drops: list = []
     while len(effects) > 1:
-        fits = map_threads(lambda e, m=model: fit(_without(m, e["terms"]), obs, ctx), effects)
+        fits = map_threads(
+            lambda e, m=model: fit(_without(m, e.get("terms", [e["name"]])), obs, ctx), effects
+        )
         drops = [
             (2 * (wo.n_parameters() - model.n_parameters()) + 2 * (nll_wo - nll_cur), e, wo, nll_wo)
             for e, (wo, nll_wo) in zip(effects, fits, strict=True)

@@ -146,6 +146,10 @@ class Term:
         and its neighbour's across the edge with a free share (uniform in (0, 1)), or None."""
         return None
 
+    def clip_level(self, v: dict):
+        """The raw level (DN) where the samples clip, or None."""
+        return None
+
     def region(self, obs):
         """The pixels (H, W bool) this term alone acts on (e.g. the depth edges), or None: the
         ranking also starts its fit from the core fitted without them."""

@@ -79,6 +79,9 @@ class SaturationTerm(Term):
                 out += [{"saturation.level": float(torch.quantile(pk, q))} for q in START_QUANTILES]
         return out
 
+    def clip_level(self, v: dict):
+        return v["saturation.level"] / v["camera.conversion_gain"]
+
     def baseline_stated(self, obs, model):
         if obs.clip_level is None:
             return None
