@@ -22,6 +22,7 @@ import torch
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
 from tof_fpn_torch.diagnosis import diagnose, load_model
+from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
 from tof_fpn_torch.io import Recording, SceneData, write_recording, write_scene
 from tof_fpn_torch.sim import (
     Camera,
@@ -153,7 +154,8 @@ def test_cli_names_a_planted_cyclic_error_and_the_model_reloads(files, tmp_path,
     assert set(rep) >= {"effects", "fit"} and set(rep["fit"]) == {"before", "after"}
     assert rep["effects"] and rep["effects"][0]["name"] == "cyclic_error"
     for e in rep["effects"]:
-        assert set(e) == {"name", "score", "delta_aic", "params", "where"}
+        assert set(e) == {"name", "terms", "score", "delta_aic", "params", "where"}
+        assert e["terms"] and all(CATALOGUE[t].effect == e["name"] for t in e["terms"])
         assert e["score"] > 0 and e["delta_aic"] < 0 and isinstance(e["params"], dict)
         assert isinstance(e["where"], list)
     cyc = rep["effects"][0]["params"]

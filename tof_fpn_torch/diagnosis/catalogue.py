@@ -53,11 +53,14 @@ Adding a term
 from __future__ import annotations
 
 from .terms.amplitude_bias import AmplitudeBiasTerm
+from .terms.amplitude_bias_shape import AmplitudeBiasShapeTerm
 from .terms.base import Term
 from .terms.cyclic_error import CyclicErrorTerm
 from .terms.flying_pixels import FlyingPixelsTerm
 from .terms.fpn_pattern import FPNPatternTerm
+from .terms.fpn_pixel_offsets import FPNPixelOffsetsTerm
 from .terms.impulsive_pixels import ImpulsivePixelsTerm
+from .terms.mixed_pixels import MixedPixelsTerm
 from .terms.multipath import MultipathTerm
 from .terms.noise_floor import NoiseFloorTerm
 from .terms.phase_wrapping import PhaseWrappingTerm
@@ -89,13 +92,17 @@ TERMS: tuple[Term, ...] = (
     FlyingPixelsTerm(),
     PhaseWrappingTerm(),
     MultipathTerm(),
+    AmplitudeBiasShapeTerm(),
+    FPNPixelOffsetsTerm(),
+    MixedPixelsTerm(),
 )
 
 #: name -> term
 CATALOGUE: dict[str, Term] = {t.name: t for t in TERMS}
 
-#: every name the report may use (``none`` when nothing is significant)
-VOCABULARY: tuple[str, ...] = tuple(CATALOGUE)
+#: every name the report may use (``none`` when nothing is significant): the effects, each
+#: modelled by one or more terms (its physical form and flexible members, ``Term.signature``)
+VOCABULARY: tuple[str, ...] = tuple(dict.fromkeys(t.effect for t in TERMS))
 
 #: What a recording can reveal when its scene is estimated from the recording itself: structure
 #: finer than the smoothing and changes over time (``Term.revealed_without_scene``).

@@ -24,7 +24,7 @@ from .. import constants as K
 from ..io import Recording, SceneData
 from ..sim import Camera, Scene
 
-__all__ = ["Observations", "estimate_scene", "observe", "pixel_stats"]
+__all__ = ["Observations", "estimate_scene", "observe", "pixel_stats", "stated_clip_level"]
 
 
 @dataclass
@@ -36,7 +36,11 @@ class Observations:
     squared deviation of depth (m) and amplitude; ``scene_depth``, ``reflectance``, ``known``: the
     scene (``scene_estimated`` when it came from the recording); ``frequency`` (Hz, None:
     unknown), ``n_phases``, ``integration_time`` (s), ``times`` (T,) s, ``q_depth``/``q_amp``:
-    quantisation steps of the stored values (0: none found); ``notes``: assumptions made.
+    quantisation steps of the stored values (0: none found); ``notes``: assumptions made;
+    ``clip_level``: the largest raw sample the camera can record (its full well or top code, in
+    the stored units) when the recording states it, else None; ``raw``: the correlation samples
+    (T, N, H, W) when the recording has them, else None; ``simulator``: the recording states
+    that the package's simulator made it (``meta["sim_camera"]``).
     """
 
     depth: torch.Tensor
@@ -59,6 +63,9 @@ class Observations:
     q_amp: float
     amplitude_unit: str = "DN"
     notes: list = field(default_factory=list)
+    clip_level: float | None = None
+    raw: torch.Tensor | None = None
+    simulator: bool = False
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -160,6 +167,28 @@ def _settings(meta: dict) -> tuple:
     return f, n_ph, ti, notes
 
 
+def stated_clip_level(meta: dict) -> float | None:
+    """The largest raw sample (stored units) the recording's camera can record, when its meta
+    states it: ``full_well_dn``, or the full well and ADC of ``sim_camera`` (what
+    ``io.recording_from_simulation`` writes): ``min(round(full_well / conversion_gain),
+    2**adc_bits - 1)``. None otherwise."""
+    lv = meta.get("full_well_dn")
+    if lv is None:
+        cam = meta.get("sim_camera")
+        if not isinstance(cam, dict) or "full_well" not in cam or "conversion_gain" not in cam:
+            return None
+        try:
+            lv = round(float(cam["full_well"]) / float(cam["conversion_gain"]))
+            if "adc_bits" in cam:
+                lv = min(lv, 2 ** int(cam["adc_bits"]) - 1)
+        except (TypeError, ValueError, OverflowError):
+            return None
+    lv = float(lv)
+    if not (math.isfinite(lv) and lv > 0):
+        raise ValueError(f"recording meta states a clip level of {lv!r}: expected a number > 0")
+    return lv
+
+
 def observe(recording: Recording, scene=None) -> Observations:
     """Check ``recording`` (and ``scene``) and compute what the diagnosis needs.
 
@@ -214,6 +243,9 @@ def observe(recording: Recording, scene=None) -> Observations:
         q_amp=q_a,
         amplitude_unit=str(recording.meta.get("amplitude_unit", "camera units")),
         notes=notes,
+        clip_level=stated_clip_level(recording.meta),
+        simulator=isinstance(recording.meta.get("sim_camera"), dict),
+        raw=None if recording.raw is None else recording.raw.to(torch.float64),
     )
     if scene is None:
         d, r, known = estimate_scene(obs)

@@ -17,6 +17,7 @@ from .data import Observations
 from .likelihood import Context, n_observations, nll
 from .model import DiagnosisModel, predict
 from .params import from_u, to_u
+from .readout import READOUT_KEYS, update_readout
 
 __all__ = [
     "FIT_ITERS",
@@ -96,7 +97,7 @@ def fit(
     specs = [s for s in model.specs() if free is None or s.key in free]
     n_obs = max(n_observations(obs, ctx, sel), 1.0)
     closed = [t for t in model.terms() if t.closed_form]
-    for _ in range(rounds if closed else 1):
+    for outer in range(rounds if closed else 1):
         with torch.no_grad():
             for t in closed:
                 model = t.update_closed_form(
@@ -104,9 +105,16 @@ def fit(
                 )
         if not specs:
             break
-        # Newton-like rounds (fresh Hessian each) until the NLL moves by less than the tolerance
+        # Newton-like rounds (fresh Hessian each) until the NLL moves by less than the tolerance;
+        # the baseline's column read-out pattern is re-estimated before every round after the
+        # first L-BFGS run (before it, the periodic pattern would go into the random one)
         last, tmat = math.inf, None
-        for _ in range(FIT_ROUNDS):
+        for i in range(FIT_ROUNDS):
+            if model.random_columns and (i > 0 or outer > 0 or READOUT_KEYS[0] in model.profiles):
+                first = READOUT_KEYS[0] not in model.profiles
+                model = _readout_step(model, obs, ctx, sel)
+                if first and READOUT_KEYS[0] in model.profiles:
+                    tmat = None  # the objective changed: a fresh Hessian (the old one can stall)
             model, val, tmat = _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat)
             if last - val < FIT_TOL:
                 break
@@ -114,6 +122,34 @@ def fit(
     with torch.no_grad():
         value = float(nll(model, obs, ctx, predict(model, obs, scene=ctx.scene), model.values, sel))
     return model, value
+
+
+def _readout_step(model: DiagnosisModel, obs, ctx, sel: str) -> DiagnosisModel:
+    """The baseline's column read-out pattern re-estimated (``readout.update_readout``), taken
+    only as far as it lowers the NLL of the ``sel`` pixels: the full step, half of it, or none
+    (the estimate is linearised; where the model is far off or bent by a clip it can overshoot)."""
+    with torch.no_grad():
+        p = predict(model, obs, scene=ctx.scene)
+        new = update_readout(model, obs, ctx, p, sel)
+        base = float(nll(model, obs, ctx, p, model.values, sel))
+        best, best_val = model, base
+        for share in (1.0, 0.5):
+            cand = new if share == 1.0 else _blend(model, new, share)
+            val = float(nll(cand, obs, ctx, predict(cand, obs, scene=ctx.scene), cand.values, sel))
+            if val < best_val - 1e-6:
+                best, best_val = cand, val
+                break
+    return best
+
+
+def _blend(old: DiagnosisModel, new: DiagnosisModel, share: float) -> DiagnosisModel:
+    """``new`` with its read-out profiles ``share`` of the way from ``old``'s (zero if none)."""
+    out = new.copy()
+    for key in READOUT_KEYS:
+        prev = old.profiles.get(key)
+        cur = new.profiles[key]
+        out.profiles[key] = cur * share if prev is None else prev + share * (cur - prev)
+    return out
 
 
 def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
@@ -124,6 +160,8 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
     the whitening matrix (passed back in, a second round reuses it)."""
     keys = [s.key for s in specs]
     charges = [s.key for s in specs if s.charge]
+    # a stated charge (not fitted) is stated in DN: it moves with the gain too
+    charges += [s.key for t in model.terms() for s in t.specs if s.key in model.fixed and s.charge]
     u0 = torch.tensor([to_u(s, model.values[s.key]) for s in specs], dtype=torch.float64)
     g0 = model.values["camera.conversion_gain"]
 
@@ -163,7 +201,7 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
             return model, float(f0) * n_obs, tmat
         v = values(u)
     out = model.copy()
-    for k in keys:
+    for k in keys + [c for c in charges if c not in keys]:
         val = float(v[k])
         if math.isfinite(val):
             out.values[k] = val
@@ -235,8 +273,9 @@ def _lbfgs(objective, u0: torch.Tensor, tmat: torch.Tensor, iters: int) -> torch
 def robust_start(model: DiagnosisModel, obs: Observations, ctx: Context, base: DiagnosisModel):
     """Starting values of the core parameters that a gross misfit cannot drag away: the model is
     refitted (from ``model``'s robust starting values) on the pixels whose temporal mean and
-    spread are within ``INLIER_Z`` sigma of the fitted ``base``, twice. ``None`` when fewer
-    than 1 % of the depth pixels are outside (nothing to protect from)."""
+    spread are within ``INLIER_Z`` sigma of the fitted ``base``, twice. Returns ``(values,
+    model)``; ``(None, None)`` when fewer than 1 % of the depth pixels are outside (nothing to
+    protect from)."""
     from dataclasses import replace as _replace
 
     from .locate import channels
@@ -251,13 +290,13 @@ def robust_start(model: DiagnosisModel, obs: Observations, ctx: Context, base: D
 
     ok = inliers(base)
     if float((~ok & ctx.mask_d).sum()) < 0.01 * float(ctx.mask_d.sum()):
-        return None
+        return None, None
     cur = model
     for _ in range(2):
         sub = _replace(ctx, mask_d=ctx.mask_d & ok, mask_a=ctx.mask_a & ok, _frames={})
         cur, _ = fit(cur, obs, sub)
         ok = inliers(cur)
-    return cur.values
+    return cur.values, cur
 
 
 def evaluate(model: DiagnosisModel, obs: Observations, ctx: Context, sel: str = "all") -> float:

@@ -6,13 +6,16 @@ pixel ``p`` is computed exactly from its ``(n, m, M2)``::
     0.5 [log(2 pi v_m) + (m - mu)^2 / v_m] + 0.5 [(n - 1) log(2 pi sigma^2) + M2 / sigma^2]
     + 0.5 log n,          v_m = sigma^2 / n + tau^2
 
-(``tau``: a random effect fixed over time, e.g. the pixel gain on the amplitude). Depth and
+(``tau``: a random effect fixed over time, e.g. the pixel gain on the amplitude, a fixed
+per-pixel offset on the depth). Depth and
 amplitude count as independent (their noises are orthogonal components of ``X_1``). Terms that
 act per frame change the statistics: a per-frame change of the means (``Term.frame_means``,
 ``temporal_drift``) is subtracted before they are taken; an outlier rate ``r``
 (``Term.outlier_rate``, ``impulsive_pixels``) turns every frame-pixel into a mixture
 ``(1 - r) N_D N_A + r U_D U_A`` with uniform densities over the observed depth and amplitude
-ranges, evaluated on the frames themselves.
+ranges, evaluated on the frames themselves. Mixed pixels at depth edges with a free share
+(``Term.edge_mixture``) turn the temporal mean of each edge pixel into a mixture over the share
+(pooled statistics only: not combined with the outlier mixture).
 """
 
 from __future__ import annotations
@@ -22,10 +25,13 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ..constants import SPEED_OF_LIGHT_AIR
 from .data import Observations, pixel_stats
 
 __all__ = [
+    "CLIP_SHARE",
     "EDGE_MARGIN",
+    "MIX_GRID",
     "MIN_SNR_AMPLITUDE",
     "MIN_SNR_DEPTH",
     "SPLIT_BLOCK",
@@ -40,6 +46,12 @@ __all__ = [
 MIN_SNR_DEPTH: float = 5.0
 #: ... and the amplitude likelihood above this (the Rician mean and spread are used).
 MIN_SNR_AMPLITUDE: float = 2.0
+#: Shares ``s`` of the grid on which the edge mixture's best share is searched (twice: coarse,
+#: then as fine around the best; ``Term.edge_mixture``).
+MIX_GRID: int = 32
+#: Edge pairs with a side whose predicted largest sample reaches this share of the clip level
+#: are left out of the edge mixture (the light mixes before the clip).
+CLIP_SHARE: float = 0.9
 #: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels.
 SPLIT_BLOCK: int = 8
 #: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
@@ -129,6 +141,20 @@ def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all")
     terms = model.terms()
     per_frame = [x for x in (t.frame_means(v, obs) for t in terms) if x is not None]
     rate = next((r for r in (t.outlier_rate(v) for t in terms) if r is not None), None)
+    mixed = next((r for r in (t.edge_mixture(v) for t in terms) if r is not None), None)
+    out = _nll_frames(obs, ctx, pred, sel, per_frame, rate)
+    if mixed is not None and rate is None:
+        clip = next((c for c in (t.clip_level(v) for t in terms) if c is not None), None)
+        if clip is not None:  # it selects pixels: no graph
+            clip = float(torch.as_tensor(clip).detach())
+        out = out + _edge_mixture(
+            obs, ctx, pred, mixed, sel, model.camera.modulation_frequency, clip
+        )
+    return out
+
+
+def _nll_frames(obs: Observations, ctx: Context, pred, sel: str, per_frame: list, rate):
+    """The NLL without the edge mixture: pooled, or frame by frame (per-frame means, outliers)."""
     if not per_frame and rate is None:
         return _nll_pooled(obs, ctx, pred, sel)
     xd, vd, idd = ctx.frames(obs, sel, "d")
@@ -144,19 +170,115 @@ def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all")
         yd = xd - (mu_d - mu_d[:1]) if per_frame else xd
         ya = xa - (mu_a - mu_a[:1]) if per_frame else xa
         n, m, m2 = pixel_stats(yd, vd)
-        out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], 0.0, pred.wrap)
+        out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], _pick(pred.tau_d, idd), pred.wrap)
         n, m, m2 = pixel_stats(ya, va)
         tau0 = tau[0] if isinstance(tau, torch.Tensor) else tau
         return out + _gauss_ss(n, m, m2, mu_a[0], sd_a[0], tau0, None)
     return _nll_mixture(ctx, pred, rate, (xd, vd, idd, mu_d, sd_d), (xa, va, ida, mu_a, sd_a), tau)
 
 
+def _edge_mixture(obs: Observations, ctx: Context, pred, prob, sel: str, freq: float, clip=None):
+    """What the NLL of the edge pixels (of both channels' masks) changes by when each is, with
+    probability ``prob``, a mixture ``(1 - s) z_p + s z_q`` of its own predicted phasor and its
+    partner's across the edge (``sim.edge_partners`` of the scene), ``s`` uniform in (0, 1) and
+    integrated out by Laplace's approximation about its best value (the peak in ``s`` is far
+    narrower than any grid: the temporal mean is precise). The mixed light's noise variance is
+    the shares' mixture of the two pixels' (shot noise of the photons it collects), and its
+    depth's sd grows as the phasors cancel (``|z_p| / |z(s)|``, up to that of a phase uniform
+    over the range): the spread parts of the NLL change too."""
+    key = ("edges", sel)
+    if key not in ctx._frames:
+        from ..sim import edge_partners
+
+        part = edge_partners(obs.scene_depth.to(torch.float64)).view(-1)
+        ma = ctx.mask_a.reshape(-1)
+        # a partner outside the likelihood (invalid, clipped, dark) has no trusted phasor
+        m = (ctx.mask_a & ctx.select(sel)).view(-1) & (part >= 0) & ma[part.clamp_min(0)]
+        idx = m.nonzero().squeeze(1)
+        ctx._frames[key] = (idx, part[idx], ctx.mask_d.reshape(-1)[idx].to(torch.float64))
+    idx, q, has_d = ctx._frames[key]
+    if clip is not None:  # the light mixes before the clip: a clipped side's phasor is not it
+        peak = (pred.offset + pred.a0).detach().reshape(-1)
+        ok = (peak[idx] < CLIP_SHARE * clip) & (peak[q] < CLIP_SHARE * clip)
+        idx, q, has_d = idx[ok], q[ok], has_d[ok]
+    if idx.numel() == 0:
+        return torch.zeros((), dtype=torch.float64)
+    k = 4.0 * math.pi * float(freq) / SPEED_OF_LIGHT_AIR
+
+    def at(x, i):
+        return x.reshape(-1)[i] if isinstance(x, torch.Tensor) else x
+
+    mu_d, a_p, a_q = at(pred.mu_d, idx), at(pred.a0, idx), at(pred.a0, q)
+    dphi = k * (at(pred.mu_d, q) - mu_d)
+    n = at(obs.n, idx).clamp_min(1)
+    sd0, tau2 = at(pred.sd_d, idx), at(pred.tau_d, idx) ** 2
+    sa0, tau2_a = at(pred.sd_a, idx), at(pred.tau_a, idx) ** 2
+    sp2, sq2 = at(pred.s, idx) ** 2, at(pred.s, q) ** 2
+    md, ma, mu_a = at(obs.m_d, idx), at(obs.m_a, idx), at(pred.mu_a, idx)
+    m2d, m2a = at(obs.m2_d, idx), at(obs.m2_a, idx)
+    r_cam = 2 * math.pi / k
+    sd_max = r_cam / math.sqrt(12.0)  # a phase uniform over the range
+
+    def gauss(r, var, vm, m2):  # the NLL of a pixel's mean and spread (no constants)
+        return torch.log(vm) + r * r / vm + (n - 1) * torch.log(var) + m2 / var
+
+    def cost(s):  # the NLL of both channels at shares s
+        zr = (1 - s) * a_p + s * a_q * torch.cos(dphi)
+        zi = s * a_q * torch.sin(dphi)
+        zr = torch.where(zr.abs() < 1e-9, zr + 1e-9, zr)  # atan2 and sqrt: no 0 / 0 gradient
+        mag = torch.sqrt(zr * zr + zi * zi)
+        # the mixed light's noise: its photons are the two pixels' in the mixture's shares
+        grow = ((1 - s) * sp2 + s * sq2) / sp2.clamp_min(1e-300)
+        var_d = (sd0**2 * grow * (a_p / mag.clamp_min(1e-12)) ** 2).clamp_max(sd_max**2)
+        var_a = sa0**2 * grow
+        dd = md - mu_d - torch.atan2(zi, zr) / k
+        dd = dd - r_cam * torch.round(dd / r_cam)  # the decoder folds the phase
+        da = ma - (mu_a - a_p + mag)  # the Rician bias of the own amplitude kept
+        depth = gauss(dd, var_d, var_d / n + tau2, m2d)
+        # amplitude-only pixels have no depth part
+        return 0.5 * (has_d * depth + gauss(da, var_a, var_a / n + tau2_a, m2a))
+
+    l0 = cost(torch.zeros_like(mu_d))
+    s_hat, width = _best_share(cost)
+    p = torch.as_tensor(prob, dtype=torch.float64).clamp(1e-12, 1 - 1e-12)
+    # Laplace's approximation of log of the integral over s in (0, 1) of e^{-cost(s)}
+    log_int = -cost(s_hat) + torch.log(width)
+    # -log[(1 - p) e^{-l0} + p int e^{-cost}] in place of l0
+    return (-torch.logaddexp(torch.log1p(-p) - l0, torch.log(p) + log_int) - l0).sum()
+
+
+def _best_share(cost) -> tuple[torch.Tensor, torch.Tensor]:
+    """The share ``s`` in [0, 1] that minimises ``cost`` per pixel (a grid of
+    :data:`MIX_GRID`, then one as fine around the best; no gradient: at the minimum the
+    gradient of the cost in ``s`` is zero) and the width ``min(sqrt(2 pi / cost''), 1)`` of
+    the peak (Laplace; a flat cost spreads over the whole interval)."""
+    with torch.no_grad():
+        g = MIX_GRID
+        grid = (torch.arange(g, dtype=torch.float64).view(-1, 1) + 0.5) / g
+        best = grid[cost(grid).argmin(0), 0]
+        fine = best.view(1, -1) + (
+            torch.arange(g + 1, dtype=torch.float64).view(-1, 1) / g - 0.5
+        ) * (2.0 / g)
+        fine = fine.clamp(0.0, 1.0)
+        s = fine.gather(0, cost(fine).argmin(0).view(1, -1)).view(-1)
+        h = 1.0 / (64 * g)
+        lo, hi = (s - h).clamp(0.0, 1.0), (s + h).clamp(0.0, 1.0)
+        c0 = cost(s)
+        curv = (
+            (cost(hi) - c0) / (hi - s).clamp_min(1e-12)
+            - (c0 - cost(lo)) / (s - lo).clamp_min(1e-12)
+        ) / (0.5 * (hi - lo).clamp_min(1e-12))
+        width = torch.sqrt(2 * math.pi / curv.clamp_min(1e-12)).clamp_max(1.0)
+    return s, width
+
+
 def _nll_pooled(obs: Observations, ctx: Context, pred, sel: str) -> torch.Tensor:
     """The NLL from each pixel's ``(n, m, M2)`` (no term acts per frame)."""
     s = ctx.select(sel)
     md, ma = ctx.mask_d & s, ctx.mask_a & s
+    tau_d = pred.tau_d[md] if isinstance(pred.tau_d, torch.Tensor) else pred.tau_d
     out = _gauss_ss(
-        obs.n[md], obs.m_d[md], obs.m2_d[md], pred.mu_d[md], pred.sd_d[md], 0.0, pred.wrap
+        obs.n[md], obs.m_d[md], obs.m2_d[md], pred.mu_d[md], pred.sd_d[md], tau_d, pred.wrap
     )
     tau = pred.tau_a[ma] if isinstance(pred.tau_a, torch.Tensor) else pred.tau_a
     return out + _gauss_ss(
@@ -172,7 +294,9 @@ def _nll_mixture(ctx: Context, pred, rate, depth: tuple, amp: tuple, tau) -> tor
     rd = xd - mu_d
     if pred.wrap is not None:
         rd = rd - pred.wrap * torch.round(rd / pred.wrap)
-    ld = -0.5 * (rd / sd_d) ** 2 - torch.log(sd_d) - 0.5 * _LOG2PI
+    tau_d = _pick(pred.tau_d, idd)
+    vd_tot = sd_d**2 + (tau_d.view(1, -1) ** 2 if isinstance(tau_d, torch.Tensor) else tau_d**2)
+    ld = -0.5 * rd**2 / vd_tot - 0.5 * torch.log(vd_tot) - 0.5 * _LOG2PI
     va_tot = sd_a**2 + (tau**2 if isinstance(tau, torch.Tensor) else tau**2)
     la = -0.5 * (xa - mu_a) ** 2 / va_tot - 0.5 * torch.log(va_tot) - 0.5 * _LOG2PI
     lu_d = -math.log(ctx.depth_span)

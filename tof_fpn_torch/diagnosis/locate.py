@@ -125,7 +125,7 @@ def channels(obs: Observations, pred, ctx) -> dict:
         if pred.wrap is not None:
             r = r - pred.wrap * torch.round(r / pred.wrap)
         n = obs.n.clamp_min(1)
-        out["depth_mean"] = (r / torch.sqrt(pred.sd_d**2 / n), r, ctx.mask_d)
+        out["depth_mean"] = (r / torch.sqrt(pred.sd_d**2 / n + pred.tau_d**2), r, ctx.mask_d)
         tau2 = pred.tau_a**2
         ra = obs.m_a - pred.mu_a
         out["amp_mean"] = (ra / torch.sqrt(pred.sd_a**2 / n + tau2), ra / pred.mu_a, ctx.mask_a)

@@ -39,6 +39,7 @@ from ..sim import (
 from .catalogue import CATALOGUE
 from .noise import decode_flat_safe, noise_law
 from .params import ParamSpec
+from .readout import READOUT_KEYS, apply_readout, readout_maps
 from .terms.base import Chain, Term
 
 __all__ = ["CORE_SPECS", "WRAP_BOUNDARY_SD", "DiagnosisModel", "Prediction", "predict"]
@@ -64,7 +65,10 @@ _BASELINE_FPN = "_readout_fpn"
 @dataclass
 class DiagnosisModel:
     """Camera, fitted values (``"owner.field"`` -> float), the catalogue effects in the model
-    (in the order they were added) and the closed-form profiles (``"columns"``, ``"rows"``)."""
+    (in the order they were added), the closed-form profiles (``"columns"``, ``"rows"``, the
+    baseline's read-out columns), the keys of values the recording states (``fixed``: not
+    fitted) and whether the baseline holds random column read-out offsets and gains
+    (``random_columns``, :mod:`~tof_fpn_torch.diagnosis.readout`)."""
 
     camera: Camera
     values: dict
@@ -73,6 +77,8 @@ class DiagnosisModel:
     frame_interval: float = 1.0
     impulsive_level: float = 1e-6
     fpn_scale: float = 1.0
+    fixed: frozenset = frozenset()
+    random_columns: bool = False
 
     def copy(self) -> DiagnosisModel:
         return DiagnosisModel(
@@ -83,6 +89,8 @@ class DiagnosisModel:
             self.frame_interval,
             self.impulsive_level,
             self.fpn_scale,
+            self.fixed,
+            self.random_columns,
         )
 
     def terms(self) -> list[Term]:
@@ -108,13 +116,17 @@ class DiagnosisModel:
                 s = replace(s, scale=self.fpn_scale**2)
             out.append(s)
         for t in self.terms():
-            out.extend(t.specs)
+            out.extend(s for s in t.specs if s.key not in self.fixed)
         return out
 
     def n_parameters(self) -> float:
         """Number of fitted parameters (closed-form estimates count their effective degrees of
         freedom, ``Term.effective_parameters``)."""
         extra = sum((t.effective_parameters(self.values) for t in self.terms()), 0.0)
+        # the read-out columns count once: as a term's profiles, or as the baseline's own
+        owned = any(set(READOUT_KEYS) & set(t.profile_keys) for t in self.terms())
+        if READOUT_KEYS[0] in self.profiles and not owned:
+            extra += float(self.values.get("readout_fpn.columns_dof", 0.0))
         return len(self.specs()) + extra
 
     def with_effect(self, name: str, init: dict) -> DiagnosisModel:
@@ -140,6 +152,7 @@ class DiagnosisModel:
         a2 = math.hypot(v["readout_fpn.cos_2pi3"], v["readout_fpn.sin_2pi3"])
         th2 = math.atan2(v["readout_fpn.sin_2pi3"], v["readout_fpn.cos_2pi3"])
         cpi = v["readout_fpn.cos_pi"]
+        off, gain = readout_maps(self, self.camera.n_phases, float(v["camera.conversion_gain"]))
         return ReadoutFPN(
             frequencies=K.FPN_FREQUENCIES,
             offset_amplitudes=(a2, abs(cpi)),
@@ -148,6 +161,8 @@ class DiagnosisModel:
             sample_phase=v["readout_fpn.sample_phase"],
             random_offset=0.0,
             random_gain=0.0,
+            offset_map=off,
+            gain_map=gain,
         )
 
     def simulation_camera(self) -> Camera:
@@ -182,6 +197,7 @@ class DiagnosisModel:
 class Prediction:
     """Per-pixel (H, W) model predictions (float64): depth mean / sd per frame, amplitude mean /
     sd per frame (Rician), ``tau_a`` (sd of the pixel-gain random effect on the amplitude mean),
+    ``tau_d`` (sd of a random effect fixed over time on the depth mean, m; 0.0: none),
     the noise-free amplitude ``a0`` and offset ``offset`` (DN), ``s`` (sd of one component of
     ``(2/N) X_1``), ``wrap`` (R when the model folds the depth, else None)."""
 
@@ -194,6 +210,7 @@ class Prediction:
     offset: torch.Tensor
     s: torch.Tensor
     wrap: object = None
+    tau_d: torch.Tensor | float = 0.0
 
 
 def _baseline_fpn(samples: torch.Tensor, v: dict) -> torch.Tensor:
@@ -241,6 +258,7 @@ def _mean_chain(model: DiagnosisModel, v: dict, state: SimState, chain: Chain) -
     for _, name in sorted(steps):
         if name == _BASELINE_FPN:
             state.samples = _baseline_fpn(state.samples, v)
+            state.samples = apply_readout(state.samples, model, v["camera.conversion_gain"])
         else:
             state = CATALOGUE[name].apply_mean(state, v, model, chain)
     return state
@@ -278,7 +296,9 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
         mu_d = _boundary_side(mu_d, var_d, obs, r_cam)
     sd_a = torch.sqrt(sd_a**2 + obs.q_amp**2 / 12.0)
     tau = _amplitude_tau(model, v, mu_a)
-    return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap)
+    k = 4.0 * math.pi * f / K.SPEED_OF_LIGHT_AIR
+    tau_d = _random_sd([t.depth_mean_sd(v, a0, k) for t in model.terms()])
+    return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap, tau_d)
 
 
 def _reading(depth: torch.Tensor, d_true: torch.Tensor, r_cam: float) -> torch.Tensor:
@@ -313,6 +333,10 @@ def _boundary_side(mu_d, var_d, obs, r_cam: float):
     looks like."""
     lim = WRAP_BOUNDARY_SD * var_d.sqrt()
     near = (dev_to_boundary(mu_d, r_cam) < lim) & (dev_to_boundary(obs.scene_depth, r_cam) >= lim)
+    if obs.frequency is not None:
+        # the camera decodes into [0, R): where the scene lies inside its stated range, a
+        # reading across 0 / R is the decoder's fold of noise or of a bias, not a scene beyond
+        near |= obs.scene_depth < r_cam
     near &= obs.known
     alt = mu_d + r_cam * torch.round((obs.m_d - mu_d) / r_cam)
     return torch.where(near, alt, mu_d)
@@ -320,7 +344,13 @@ def _boundary_side(mu_d, var_d, obs, r_cam: float):
 
 def _amplitude_tau(model: DiagnosisModel, v: dict, mu_a):
     """Sd of the random effects on the amplitude means (``Term.amplitude_sd``; 0.0: none)."""
-    sds = [x for x in (t.amplitude_sd(v, mu_a) for t in model.terms()) if x is not None]
+    return _random_sd([t.amplitude_sd(v, mu_a) for t in model.terms()])
+
+
+def _random_sd(sds: list):
+    """The sd of the sum of independent random effects of sds ``sds`` (None: a term without
+    one; 0.0 when there is none)."""
+    sds = [x for x in sds if x is not None]
     if not sds:
         return 0.0
     return sds[0] if len(sds) == 1 else torch.sqrt(sum(x * x for x in sds))

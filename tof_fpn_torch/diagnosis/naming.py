@@ -13,6 +13,7 @@ of the non-linear parameters), so one L-BFGS run per term suffices.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
@@ -94,6 +95,14 @@ def _starts(term: Term, base_train: DiagnosisModel, obs, ctx, start_values) -> l
         # both starts are fitted: the robust one may start worse (its noise law is not bent
         # to the misfit yet) and end far better (a clip level found once the noise is right)
         starts.append(_try(alt, term, alt_init, obs, ctx))
+    region = term.region(obs)
+    if region is not None and bool(region.any()):
+        # the core fitted without the pixels the term acts on: a misfit there (mixed pixels
+        # far from either surface) bends the noise law of the current model, which the term's
+        # fit from it may not undo within its iterations
+        sub = replace(ctx, mask_d=ctx.mask_d & ~region, mask_a=ctx.mask_a & ~region, _frames={})
+        core, _ = fit(base_train, obs, sub, "train", iters=CANDIDATE_ITERS)
+        starts.append(_try(core, term, initial_values(term.name, core, obs, ctx), obs, ctx))
     return [s for s in starts if s is not None]
 
 

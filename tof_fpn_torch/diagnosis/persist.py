@@ -20,6 +20,7 @@ import torch
 from ..sim import Camera
 from .catalogue import CATALOGUE
 from .model import CORE_SPECS, DiagnosisModel
+from .readout import READOUT_KEYS
 
 __all__ = ["MODEL_CONTENT", "adapt_model", "load_model", "model_to_dict", "save_model"]
 
@@ -51,6 +52,8 @@ def model_to_dict(model: DiagnosisModel) -> dict:
         "frame_interval": model.frame_interval,
         "impulsive_level": model.impulsive_level,
         "fpn_scale": model.fpn_scale,
+        "fixed": sorted(model.fixed),
+        "random_columns": model.random_columns,
         "simulation": [
             {
                 "term": type(t).__name__,
@@ -118,6 +121,8 @@ def load_model(source) -> DiagnosisModel:
         float(data.get("frame_interval", 1.0)),
         float(data.get("impulsive_level", 1e-6)),
         float(data.get("fpn_scale", 1.0)),
+        frozenset(data.get("fixed", ())),
+        bool(data.get("random_columns", False)),
     )
 
 
@@ -131,6 +136,13 @@ def adapt_model(model: DiagnosisModel, obs) -> DiagnosisModel:
             raise ValueError(
                 f"baseline model's {key} profile has {prof.numel()} entries, the recording "
                 f"{n} {what}: the model was fitted to frames of another size"
+            )
+    for key in READOUT_KEYS:
+        prof = model.profiles.get(key)
+        if prof is not None and prof.shape[-1] != w:
+            raise ValueError(
+                f"baseline model's read-out columns have {prof.shape[-1]} entries, the "
+                f"recording {w} columns: the model was fitted to frames of another size"
             )
     m = model.copy()
     cam = m.camera

@@ -77,6 +77,19 @@ def markdown(report: dict, figures: list[str]) -> str:
     )
     for n in rec["notes"]:
         lines.append(f"- {n}")
+    base = report.get("baseline")
+    if base and (base["terms"] or base["random_columns"]):
+        held = [
+            f"`{t}`" + (" (stated)" if any(k.startswith(t + ".") for k in base["stated"]) else "")
+            for t in base["terms"]
+        ]
+        if base["random_columns"]:
+            rc = base["readout_random_columns"]
+            held.append(
+                f"random read-out columns ({rc['offset_rms_dn']:.3g} DN offsets, "
+                f"{rc['gain_rms']:.3g} gains rms)"
+            )
+        lines.append(f"- the baseline holds: {', '.join(held)}")
     lines += ["", f"**Verdict: {', '.join(report['verdict'])}**", ""]
     if report["effects"]:
         lines += ["| effect | held-out gain (nats) | delta AIC | parameters |", "|---|---|---|---|"]

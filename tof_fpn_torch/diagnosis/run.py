@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from contextlib import contextmanager
@@ -10,15 +11,15 @@ from dataclasses import dataclass, field
 import torch
 
 from ..io import Recording, read_recording, read_scene
-from .catalogue import CATALOGUE, REVEALED_WITHOUT_SCENE
+from .catalogue import CATALOGUE, REVEALED_WITHOUT_SCENE, implemented
 from .data import Observations, observe
-from .fit import evaluate, fit, init_model, robust_start
+from .fit import FIT_TOL, evaluate, fit, init_model, robust_start
 from .likelihood import Context, make_context
 from .locate import Stat, bootstrap, locate, statistics
 from .model import DiagnosisModel, predict
 from .naming import MIN_DAIC, rank
 from .persist import adapt_model, load_model
-from .summary import describe_effects, fit_summary, report_content
+from .summary import baseline_summary, describe_effects, fit_summary, report_content
 from .threads import map_threads
 
 __all__ = ["BOOTSTRAP", "RETRY_GAIN", "RETRY_MAX", "Diagnosis", "diagnose"]
@@ -154,6 +155,7 @@ def diagnose(
             "after": fit_summary(current, obs, ctx, evaluate(current, obs, ctx), heldout_after),
         }
         report = report_content(effects, fits, rankings, before, after, obs, ctx, replicates)
+        report["baseline"] = baseline_summary(base)
         report["seconds"] = round(time.perf_counter() - t0, 2)
     return Diagnosis(report, base, current, obs, ctx, before, after, rankings)
 
@@ -167,13 +169,24 @@ def _baseline(obs: Observations, baseline) -> DiagnosisModel:
             baseline = load_model(baseline)
         return adapt_model(baseline, obs)
     model = init_model(obs, obs.scene())
-    if obs.scene_estimated:
-        for term in CATALOGUE.values():
+    if obs.simulator:
+        model.random_columns = True
+        obs.notes.append(
+            "the recording states that the package's simulator made it (sim_camera): its "
+            "read-out is the simulator's ReadoutFPN, whose default has random column offsets "
+            "and gains besides the periodic ones; the baseline holds them (readout_fpn.*)"
+        )
+    for term in CATALOGUE.values():
+        extra = term.baseline_stated(obs, model)
+        fixed = extra is not None
+        if extra is None and obs.scene_estimated:
             extra = term.baseline_without_scene()
-            if extra is not None:
-                values, note = extra
-                model = model.with_effect(term.name, values)
-                obs.notes.append(note)
+        if extra is not None:
+            values, note = extra
+            model = model.with_effect(term.name, values)
+            if fixed:  # what the recording states is not fitted
+                model.fixed = model.fixed | frozenset(values)
+            obs.notes.append(note)
     return model
 
 
@@ -196,7 +209,13 @@ def _fit_baseline(model: DiagnosisModel, obs: Observations):
     if bool((grown.mask_d & ~ctx.mask_d).any()) or bool((grown.mask_a & ~ctx.mask_a).any()):
         ctx = grown
         model, _ = fit(model, obs, ctx)
-    start_values = robust_start(init, obs, ctx, model)
+    start_values, robust = robust_start(init, obs, ctx, model)
+    if robust is not None:
+        # the fit on all pixels can settle in a basin the outliers bent (the noise law and the
+        # read-out columns absorbing a misfit); from the robust fit it may reach a better one
+        alt, nll_alt = fit(robust, obs, ctx)
+        if nll_alt < evaluate(model, obs, ctx) - FIT_TOL:
+            model = alt
     if not bool(ctx.mask_d.any()):
         raise ValueError("no pixel has a clear enough signal for the depth likelihood")
     return model, ctx, start_values
@@ -204,12 +223,19 @@ def _fit_baseline(model: DiagnosisModel, obs: Observations):
 
 def _forward(base, base_train, ranking, obs, ctx, before, start_values, only, max_effects):
     """Forward rounds from the first ``ranking``: the best significant candidate is added and
-    the model refitted, until none is significant or ``max_effects`` are in. Returns the model,
-    the last fit on the fitting half, the effects added (report entries) and every round's
-    ranking (without the fitted models)."""
+    the model refitted, until none is significant or ``max_effects`` effects are named. Returns
+    the model, the last fit on the fitting half, the effects named (report entries; ``terms``:
+    the catalogue terms, the forms, that model each) and every round's ranking (without the
+    fitted models).
+
+    One effect, one name: from the second round the other forms (flexible members) of the
+    effects already named are candidates too. A further effect is named only when its held-out
+    gain is significant and larger than the best held-out gain of those forms (a refit of the
+    named effects with more freedom); when a form of a named effect is the best significant
+    candidate it joins that effect (no new name)."""
     rankings, effects = [], []
     current, train_model = base, base_train
-    for _ in range(max_effects):
+    while len(effects) < max_effects and len(rankings) < 2 * max_effects:
         rankings.append([{k: v for k, v in r.items() if k != "model"} for r in ranking])
         best = next((r for r in ranking if r["significant"]), None)
         if best is None:
@@ -217,34 +243,68 @@ def _forward(base, base_train, ranking, obs, ctx, before, start_values, only, ma
         name = best["name"]
         nll_cur = evaluate(current, obs, ctx)
         new, nll_new = fit(best["model"], obs, ctx)
-        effects.append(
-            {
-                "name": name,
-                "score": best["score"],
-                "delta_aic": round(
-                    2 * (new.n_parameters() - current.n_parameters()) - 2 * (nll_cur - nll_new),
-                    3,
-                ),
-                "heldout_gain": best["score"],
-                "train_delta_aic": best["delta_aic"],
-            }
-        )
+        daic = 2 * (new.n_parameters() - current.n_parameters()) - 2 * (nll_cur - nll_new)
+        named = next((e for e in effects if e["name"] == CATALOGUE[name].effect), None)
+        if named is not None:  # another form of a named effect: it joins it
+            named["terms"].append(name)
+        else:
+            effects.append(
+                {
+                    "name": CATALOGUE[name].effect,
+                    "terms": [name],
+                    "score": best["score"],
+                    "delta_aic": round(daic, 3),
+                    "heldout_gain": best["score"],
+                    "train_delta_aic": best["delta_aic"],
+                }
+            )
         current = new
         train_model = best["model"]
         if len(effects) == max_effects:
             break
-        # the next round tries the terms that gained something in this one (a term that
-        # did not help before the winner was modelled is not re-fitted)
-        again = [
-            r["name"]
-            for r in ranking
-            if r["name"] != name and r["score"] is not None and r["score"] >= RETRY_GAIN
-        ][:RETRY_MAX]
-        again += [n for n in _signalled(current, obs, ctx, before) if n not in again]
-        if only is not None:
-            again = [n for n in again if n in only]
-        ranking, train_model = rank(current, obs, ctx, only=again, start_values=start_values)
+        ranking, train_model = rank(
+            current,
+            obs,
+            ctx,
+            only=_next_candidates(ranking, name, current, obs, ctx, before, only),
+            start_values=start_values,
+        )
+        ranking = _one_name(ranking, effects)
     return current, train_model, effects, rankings
+
+
+def _next_candidates(ranking, name, current, obs, ctx, before, only) -> list[str]:
+    """The terms the next round tries: those that gained something in this one (a term that did
+    not help before the winner was modelled is not re-fitted), those the located statistics
+    point at, and the other forms of the effects in the model."""
+    again = [
+        r["name"]
+        for r in ranking
+        if r["name"] != name and r["score"] is not None and r["score"] >= RETRY_GAIN
+    ][:RETRY_MAX]
+    again += [n for n in _signalled(current, obs, ctx, before) if n not in again]
+    named = {CATALOGUE[n].effect for n in current.effects}
+    again += [
+        n
+        for n in implemented()
+        if CATALOGUE[n].effect in named and n not in current.effects and n not in again
+    ]
+    if only is not None:
+        again = [n for n in again if n in only]
+    return again
+
+
+def _one_name(ranking: list, effects: list) -> list:
+    """The ranking with a new effect's candidates significant only when they gain more than
+    every form of the effects already named (which are ranked as they are)."""
+    named = {e["name"] for e in effects}
+    forms = [r["score"] for r in ranking if CATALOGUE[r["name"]].effect in named]
+    bar = max([s for s in forms if s is not None], default=-math.inf)
+    for r in ranking:
+        if CATALOGUE[r["name"]].effect not in named and r["significant"] and r["score"] <= bar:
+            r["significant"] = False
+            r["below_named_forms"] = True
+    return ranking
 
 
 def _signalled(model, obs, ctx, before: dict) -> list[str]:
@@ -263,6 +323,13 @@ def _signalled(model, obs, ctx, before: dict) -> list[str]:
     ]
 
 
+def _without(model, names: list[str]):
+    """``model`` without the terms ``names``."""
+    for n in names:
+        model = model.without(n)
+    return model
+
+
 def _prune(model, effects: list, obs, ctx):
     """Backward elimination, then the order: each term is dropped in turn from the final model
     (the rest refitted on all pixels); the one whose loss costs least is removed while that
@@ -273,7 +340,9 @@ def _prune(model, effects: list, obs, ctx):
     nll_cur = evaluate(model, obs, ctx)
     drops: list = []
     while len(effects) > 1:
-        fits = map_threads(lambda e, m=model: fit(m.without(e["name"]), obs, ctx), effects)
+        fits = map_threads(
+            lambda e, m=model: fit(_without(m, e.get("terms", [e["name"]])), obs, ctx), effects
+        )
         drops = [
             (2 * (wo.n_parameters() - model.n_parameters()) + 2 * (nll_wo - nll_cur), e, wo, nll_wo)
             for e, (wo, nll_wo) in zip(effects, fits, strict=True)

@@ -3,6 +3,8 @@ and what each named effect is and explains."""
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from .catalogue import CATALOGUE
@@ -11,7 +13,15 @@ from .likelihood import n_observations
 from .locate import locate
 from .model import predict
 
-__all__ = ["describe_effects", "explained", "fit_summary", "located", "report_content"]
+__all__ = [
+    "also_consistent",
+    "baseline_summary",
+    "describe_effects",
+    "explained",
+    "fit_summary",
+    "located",
+    "report_content",
+]
 
 
 def fit_summary(model, obs, ctx, nll_all: float, heldout: float) -> dict:
@@ -48,17 +58,22 @@ def describe_effects(effects: list, model, obs, ctx, before: dict, after: dict) 
     with torch.no_grad():
         pred = predict(model, obs, scene=ctx.scene)
     for e in effects:
-        e["params"] = CATALOGUE[e["name"]].describe(model, obs, pred)
-        e["where"] = explained(e["name"], before, after)
+        terms = e.get("terms", [e["name"]])
+        e["params"] = {}
+        for t in terms:
+            e["params"].update(CATALOGUE[t].describe(model, obs, pred))
+        e["where"] = explained(terms[0], before, after)
 
 
 def report_content(effects, fits, rankings, before, after, obs, ctx, replicates: int) -> dict:
     """The ``report.json`` content (without ``seconds``)."""
     return {
         "effects": [
-            {k: e[k] for k in ("name", "score", "delta_aic", "params", "where")} for e in effects
+            {k: e[k] for k in ("name", "terms", "score", "delta_aic", "params", "where") if k in e}
+            for e in effects
         ],
         "verdict": [e["name"] for e in effects] or ["none"],
+        "also_consistent_with": also_consistent(effects, rankings),
         "fit": fits,
         "located_before": located(before, replicates),
         "located_after": located(after, replicates),
@@ -78,6 +93,21 @@ def report_content(effects, fits, rankings, before, after, obs, ctx, replicates:
         },
         "bootstrap_replicates": replicates,
     }
+
+
+def also_consistent(effects: list, rankings: list) -> list[str]:
+    """The effects not named whose candidates were significant in some round (a term that gains
+    on its own but not beyond the effects named: it stands in for their misfit, or it is
+    another reading of the same data), strongest first."""
+    named = {e["name"] for e in effects}
+    out: dict[str, float] = {}
+    for ranking in rankings:
+        for r in ranking:
+            eff = CATALOGUE[r["name"]].effect
+            ok = r["significant"] or r.get("below_named_forms", False)
+            if ok and eff not in named and r["score"] is not None:
+                out[eff] = max(out.get(eff, -math.inf), r["score"])
+    return sorted(out, key=lambda k: -out[k])
 
 
 def explained(name: str, before: dict, after: dict) -> list[dict]:
@@ -101,4 +131,28 @@ def explained(name: str, before: dict, after: dict) -> list[dict]:
             "inside_null_band": bool(a.band()[0] <= a.value <= a.band()[1]) or a.p > 0.05,
         }
         out.append(b)
+    return out
+
+
+def baseline_summary(model) -> dict:
+    """What the fitted baseline holds besides the issue's core: the catalogue terms the
+    recording states (``stated``: their values are not fitted) or that an estimated scene
+    implies, and the read-out pattern (periodic offsets in e-, and where the recording states
+    the simulator's read-out, the random column offsets in DN and gains)."""
+    v = model.values
+    out = {
+        "terms": list(model.effects),
+        "stated": sorted(model.fixed),
+        "readout_periodic_e": {
+            k.split(".")[1]: round(float(v[k]), 4)
+            for k in ("readout_fpn.cos_2pi3", "readout_fpn.sin_2pi3", "readout_fpn.cos_pi")
+        },
+        "random_columns": model.random_columns,
+    }
+    if model.random_columns:
+        out["readout_random_columns"] = {
+            "offset_rms_dn": round(float(v.get("readout_fpn.random_offset_rms", 0.0)), 4),
+            "gain_rms": round(float(v.get("readout_fpn.random_gain_rms", 0.0)), 6),
+            "effective_parameters": round(float(v.get("readout_fpn.columns_dof", 0.0)), 2),
+        }
     return out

@@ -55,8 +55,16 @@ from .effects import (
     TemporalDrift,
     with_effect,
 )
-from .optics import LensBlur, Multipath, PixelGain, Saturation, Vignetting
-from .readout import ADC, ImpulsivePixels, ReadoutFPN, default_terms
+from .optics import (
+    EdgeMixing,
+    LensBlur,
+    Multipath,
+    PixelGain,
+    Saturation,
+    Vignetting,
+    edge_partners,
+)
+from .readout import ADC, ImpulsivePixels, PixelOffset, ReadoutFPN, default_terms
 from .scenes import MATERIALS, Scene, planar_scene, synthetic_scene
 from .simulator import SimResult, Simulation, simulate
 from .terms import Photons, ReadNoise, ShotNoise, SimState, Term
@@ -67,6 +75,7 @@ __all__ = [
     "AmplitudeBias",
     "CyclicError",
     "FPNPattern",
+    "EdgeMixing",
     "LensBlur",
     "Multipath",
     "PhaseJitter",
@@ -88,6 +97,7 @@ __all__ = [
     "ImpulsivePixels",
     "Photons",
     "ReadNoise",
+    "PixelOffset",
     "ReadoutFPN",
     "Scene",
     "ShotNoise",
@@ -101,6 +111,7 @@ __all__ = [
     "depth_from_samples",
     "depth_noise_vs_amplitude",
     "depth_noise_std",
+    "edge_partners",
     "fpn_error_vs_amplitude",
     "fpn_intensity",
     "fpn_pattern",

@@ -14,7 +14,7 @@ Catalogue name -> class: physics (parameters):
 * ``fpn_pattern`` -> :class:`FPNPattern`: column / row delays of the demodulation clock tree, any
   spectrum (profiles in m, or ``rms_*`` in m with an AR(1) ``correlation``);
 * ``amplitude_bias`` -> :class:`AmplitudeBias`: signal-dependent delay ``b A_ref / (A + A_ref)``
-  (b in m, A_ref in e-);
+  (b in m, A_ref in e-), or a curve in ``ln A`` through given points;
 * ``temporal_drift`` -> :class:`TemporalDrift`: warm-up delay ``D (1 - e^{-t/tau})`` (m, s) and
   light output ``1 + a (1 - e^{-t/tau})``;
 * ``noise_floor`` -> :class:`PhaseJitter`: per-pixel, per-frame clock jitter (depth-equivalent
@@ -69,9 +69,11 @@ STAGE: dict[str, int] = {
     "vignetting": 30,
     "pixel_gain": 31,
     "flying_pixels": 32,
+    "edge_mixing": 33,
     "amplitude_bias": 35,
     "shot_noise": 40,
     "readout_fpn": 50,
+    "pixel_offset": 51,
     "read_noise": 60,
     "saturation": 65,
     "adc": 70,
@@ -190,18 +192,27 @@ class FPNPattern(Term):
 
 @dataclass
 class AmplitudeBias(Term):
-    """Signal-dependent delay: ``delta(A) = b A_ref / (A + A_ref)`` (m) at amplitude ``A`` (e-).
+    """Signal-dependent delay: ``delta(A) = b A_ref / (A + A_ref)`` (m) at amplitude ``A`` (e-),
+    or any curve through given points.
 
     The demodulation of a weak photocurrent lags (charge transfer slower at low charge): the
-    depth reads ``b`` too far at ``A << A_ref`` and the bias fades above ``A_ref``.
+    depth reads ``b`` too far at ``A << A_ref`` and the bias fades above ``A_ref``. A camera's
+    bias has its own shape: with ``knots`` (amplitudes in e-, increasing) and ``delays`` (m, one
+    per knot) the delay is instead the piecewise-linear interpolation in ``ln A`` through those
+    points, constant beyond the first and last knot (``delay`` and ``reference`` are then
+    unused).
 
     Args:
         delay: ``b`` in metres (either sign).
         reference: ``A_ref`` in e- of amplitude (> 0).
+        knots: amplitudes (e-, > 0, increasing) of the curve's points; empty: the hyperbola.
+        delays: the delay (m) at each knot (floats or 0-d tensors).
     """
 
     delay: float = 0.0
     reference: float = 1000.0
+    knots: tuple = ()
+    delays: tuple = ()
     name: str = field(default="amplitude_bias", init=False)
 
     def __post_init__(self) -> None:
@@ -210,15 +221,34 @@ class AmplitudeBias(Term):
     def validate(self) -> AmplitudeBias:
         _as_float(self.delay, "AmplitudeBias.delay")
         _check_range(self.reference, "AmplitudeBias.reference", 0.0, strict=True, unit=" e-")
+        if len(self.knots) != len(self.delays) or len(self.knots) == 1:
+            raise ValueError(
+                "AmplitudeBias.knots and .delays must have the same length (0, or >= 2), got "
+                f"{len(self.knots)} and {len(self.delays)}"
+            )
+        k = [_as_float(x, "AmplitudeBias.knots") for x in self.knots]
+        if any(x <= 0 for x in k) or any(b <= a for a, b in zip(k, k[1:], strict=False)):
+            raise ValueError(f"AmplitudeBias.knots must be > 0 and increasing, got {k}")
         return self
+
+    def bias(self, amp: torch.Tensor) -> torch.Tensor:
+        """The delay (m) at amplitudes ``amp`` (e-)."""
+        if not self.knots:
+            ref = _num(self.reference, amp)
+            return _num(self.delay, amp) * ref / (amp + ref)
+        u = torch.log(amp.clamp_min(1e-12))
+        t = [math.log(float(x)) for x in self.knots]
+        out = _num(self.delays[0], amp) * torch.ones_like(u)
+        for j in range(1, len(t)):  # each segment adds its change, linear in ln A
+            step = _num(self.delays[j], amp) - _num(self.delays[j - 1], amp)
+            out = out + step * ((u - t[j - 1]) / (t[j] - t[j - 1])).clamp(0.0, 1.0)
+        return out
 
     def apply(self, state: SimState) -> SimState:
         s = state.samples
         xr, xi = fundamental(s)
         amp = torch.sqrt(xr * xr + xi * xi + 1e-12) * (2.0 / s.shape[1])
-        ref = _num(self.reference, s)
-        bias = _num(self.delay, s) * ref / (amp + ref)
-        state.samples = rotate_fundamental(s, bias * _phase_per_metre(state.camera))
+        state.samples = rotate_fundamental(s, self.bias(amp) * _phase_per_metre(state.camera))
         return state
 
 

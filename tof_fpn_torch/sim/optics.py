@@ -20,7 +20,19 @@ from .effects import _phase_per_metre, rotate_fundamental
 from .relay import scene_relay
 from .terms import SimState, Term, _num
 
-__all__ = ["LensBlur", "Multipath", "PixelGain", "Saturation", "Vignetting"]
+__all__ = [
+    "EDGE_STEP_M",
+    "EdgeMixing",
+    "LensBlur",
+    "Multipath",
+    "PixelGain",
+    "Saturation",
+    "Vignetting",
+    "edge_partners",
+]
+
+#: a pixel is on a depth edge when a 4-neighbour's scene depth differs by more than this (m)
+EDGE_STEP_M: float = 0.1
 
 
 def _radius2(h: int, w: int, cx, cy, like: torch.Tensor) -> torch.Tensor:
@@ -130,6 +142,67 @@ class LensBlur(Term):
         y = F.conv2d(y, k.view(1, 1, 1, -1))
         y = F.conv2d(y, k.view(1, 1, -1, 1))
         state.samples = y.reshape(b, n, h, w)
+        return state
+
+
+def edge_partners(depth: torch.Tensor, step: float = EDGE_STEP_M) -> torch.Tensor:
+    """For every pixel of ``depth`` (H, W) the flat index of its 4-neighbour across the largest
+    depth step, or -1 where no 4-neighbour differs by more than ``step`` m (not on an edge, or
+    an invalid depth)."""
+    h, w = depth.shape
+    idx = torch.arange(h * w, device=depth.device).view(h, w)
+    d = torch.nan_to_num(depth, nan=0.0)
+    best = torch.zeros_like(d)
+    out = torch.full((h, w), -1, dtype=torch.long, device=depth.device)
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        nd = torch.roll(d, (dy, dx), (0, 1))
+        ni = torch.roll(idx, (dy, dx), (0, 1))
+        inside = torch.ones_like(d, dtype=torch.bool)
+        if dy:
+            inside[0 if dy > 0 else -1, :] = False
+        if dx:
+            inside[:, 0 if dx > 0 else -1] = False
+        gap = (nd - d).abs()
+        take = inside & (gap > step) & (gap > best) & (d > 0) & (nd > 0)
+        best = torch.where(take, gap, best)
+        out = torch.where(take, ni, out)
+    return out
+
+
+@dataclass
+class EdgeMixing(Term):
+    """Mixed pixels at depth edges with a random share: each pixel on a depth edge of the scene
+    (:func:`edge_partners`) is, with probability ``probability``, a mixture ``(1 - s) x_p + s
+    x_q`` of its own samples and those of its neighbour across the edge, ``s`` uniform in
+    (0, 1) per pixel (its footprint covers a random part of the other surface); fixed over the
+    frames (from ``seed``). Unlike :class:`LensBlur` the share is not set by a point-spread
+    function.
+
+    Args:
+        probability: share of the edge pixels that are mixed, in [0, 1].
+        seed: seed of which pixels mix and their shares.
+    """
+
+    probability: float = 0.0
+    seed: int = 23
+    name: str = field(default="edge_mixing", init=False)
+
+    def __post_init__(self) -> None:
+        _check_range(self.probability, "EdgeMixing.probability", 0.0, strict=False)
+        if _as_float(self.probability, "probability") > 1:
+            raise ValueError(f"EdgeMixing.probability must be <= 1, got {self.probability}")
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        b, n, h, w = s.shape
+        part = edge_partners(state.scene.depth[0, 0].to(torch.float64))
+        gen = torch.Generator().manual_seed(int(self.seed))
+        u = torch.rand((2, h, w), generator=gen, dtype=torch.float64).to(s.device)
+        mix = (part >= 0) & (u[0] < _as_float(self.probability, "probability"))
+        share = torch.where(mix, u[1], torch.zeros_like(u[1])).to(s.dtype)
+        flat = s.reshape(b, n, h * w)
+        other = flat[:, :, part.clamp_min(0).view(-1)].view(b, n, h, w)
+        state.samples = s + share.view(1, 1, h, w) * (other - s)
         return state
 
 

@@ -26,7 +26,7 @@ from .. import constants as K
 from .camera import _as_float, _check_range
 from .terms import Photons, ReadNoise, ShotNoise, SimState, Term, _num, _owned
 
-__all__ = ["ADC", "ImpulsivePixels", "ReadoutFPN", "default_terms"]
+__all__ = ["ADC", "ImpulsivePixels", "PixelOffset", "ReadoutFPN", "default_terms"]
 
 
 _AXES = ("columns", "rows")
@@ -50,6 +50,9 @@ class ReadoutFPN(Term):
         random_gain: ``sigma_g``, relative rms of the non-periodic per-column gains (>= 0).
         axis: ``"columns"`` or ``"rows"``.
         seed: seed of the fixed random part (the same pattern in every frame).
+        offset_map: optional explicit offsets added to ``o_n(x)``, e-, shape (N, length) (e.g.
+            a measured or fitted pattern); None: none.
+        gain_map: optional explicit gains added to ``g_n(x)``, relative, shape (N, length).
     """
 
     frequencies: tuple[float, ...] = K.FPN_FREQUENCIES
@@ -61,6 +64,8 @@ class ReadoutFPN(Term):
     random_gain: float = 0.0005
     axis: str = "columns"
     seed: int = 20150413
+    offset_map: object = None
+    gain_map: object = None
     name: str = field(default="readout_fpn", init=False)
 
     def __post_init__(self) -> None:
@@ -124,6 +129,18 @@ class ReadoutFPN(Term):
             gain = gain + _num(c, p) * p
         offsets = off * w_n + _num(self.random_offset, xi_o) * xi_o
         gains = 1.0 + gain * w_n + _num(self.random_gain, xi_g) * xi_g
+        for nm, extra in (("offset_map", self.offset_map), ("gain_map", self.gain_map)):
+            if extra is None:
+                continue
+            m = torch.as_tensor(extra).to(device=device, dtype=dtype)
+            if tuple(m.shape) != (n, length):
+                raise ValueError(
+                    f"ReadoutFPN.{nm} must be (N, length) = ({n}, {length}), got {list(m.shape)}"
+                )
+            if nm == "offset_map":
+                offsets = offsets + m
+            else:
+                gains = gains + m
         return offsets, gains
 
     def apply(self, state: SimState) -> SimState:
@@ -139,6 +156,39 @@ class ReadoutFPN(Term):
             state.samples = s.mul_(gain).add_(off)
         else:
             state.samples = torch.addcmul(off, s, gain)
+        return state
+
+
+@dataclass
+class PixelOffset(Term):
+    """A fixed complex offset per pixel on the decoded phasor (dark-signal non-uniformity of the
+    demodulating pixel: the two taps' charges do not cancel): sample ``n`` of pixel ``p`` gets
+    ``c_p cos(2 pi n / N) + d_p sin(2 pi n / N)`` e-, so ``(2 / N) X_1`` moves by ``c_p - j
+    d_p``; ``c_p``, ``d_p`` i.i.d. N(0, ``sd``^2), the same in every frame (from ``seed``).
+    Its depth error is ``|O| / A`` radians at most: it grows as the amplitude falls; the
+    amplitude moves by the offset's radial part (not in proportion to the amplitude, as a
+    gain would).
+
+    Args:
+        sd: rms of each component (e-, >= 0).
+        seed: seed of the map.
+    """
+
+    sd: float = 0.0
+    seed: int = 11
+    name: str = field(default="pixel_offset", init=False)
+
+    def __post_init__(self) -> None:
+        _check_range(self.sd, "PixelOffset.sd", 0.0, strict=False, unit=" e-")
+
+    def apply(self, state: SimState) -> SimState:
+        s = state.samples
+        _, n, h, w = s.shape
+        gen = torch.Generator().manual_seed(int(self.seed))
+        c = torch.randn((2, h, w), generator=gen, dtype=torch.float64).to(s.device, s.dtype)
+        th = torch.arange(n, device=s.device, dtype=s.dtype).view(1, n, 1, 1) * (2 * math.pi / n)
+        off = c[0].view(1, 1, h, w) * torch.cos(th) + c[1].view(1, 1, h, w) * torch.sin(th)
+        state.samples = s + _num(self.sd, s) * off
         return state
 
 

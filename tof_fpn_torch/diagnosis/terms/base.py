@@ -23,8 +23,9 @@ __all__ = ["ENTERS", "Chain", "Term", "depth_residuals", "least_squares", "r4"]
 #: how a term can enter the model (``Term.enters``) and the hook that makes it so
 ENTERS: dict[str, str] = {
     "chain": "simulator_term in the noise-free mean chain (apply_mean)",
-    "variance": "depth_variance / depth_variance_limit / amplitude_sd",
+    "variance": "depth_variance / depth_variance_limit / amplitude_sd / depth_mean_sd",
     "frames": "frame_means / outlier_rate",
+    "mixture": "edge_mixture",
     "wrap": "wrap_range",
 }
 
@@ -51,8 +52,12 @@ class Term:
     they enter the model (``enters``). Values ``v`` map ``"owner.field"`` keys to floats or
     tensors (tensors keep the autograd graph while the model is fitted)."""
 
-    #: the name the report uses; every key of ``specs`` starts with ``name + "."``
+    #: the term's key in the catalogue; every key of ``specs`` starts with ``name + "."``
     name: ClassVar[str] = ""
+    #: the effect the report names when this term is in the model: its ``name``, or for a
+    #: flexible member of an effect (another functional form of the same physics) the name of
+    #: that effect (the report names the signature, not the form)
+    signature: ClassVar[str] = ""
     #: the fitted scalars (empty: nothing fitted by L-BFGS, e.g. closed-form profiles)
     specs: ClassVar[tuple[ParamSpec, ...]] = ()
     #: how it enters the model, a key of :data:`ENTERS`
@@ -77,6 +82,11 @@ class Term:
     restarts_from_robust_values: ClassVar[bool] = False
     #: keys of ``DiagnosisModel.profiles`` it owns (dropped with it)
     profile_keys: ClassVar[tuple[str, ...]] = ()
+
+    @property
+    def effect(self) -> str:
+        """The effect the report names (``signature``, default ``name``)."""
+        return self.signature or self.name
 
     # --- what every term implements -------------------------------------------------------------
 
@@ -117,6 +127,11 @@ class Term:
         """Sd of a random effect fixed over time on each pixel's amplitude mean, or None."""
         return None
 
+    def depth_mean_sd(self, v: dict, a0: torch.Tensor, k: float):
+        """Sd (m) of a random effect fixed over time on each pixel's depth mean, or None;
+        ``a0``: the noise-free amplitude (DN), ``k``: radians of phase per metre of depth."""
+        return None
+
     def wrap_range(self, v: dict):
         """The range (m) the depth is folded into, or None."""
         return None
@@ -124,6 +139,20 @@ class Term:
     def frame_means(self, v: dict, obs):
         """Per-frame change of the means: ``(depth shift (T, 1), amplitude factor (T, 1))``, or
         None."""
+        return None
+
+    def edge_mixture(self, v: dict):
+        """Probability that a pixel on a depth edge of the scene is a mixture of its own return
+        and its neighbour's across the edge with a free share (uniform in (0, 1)), or None."""
+        return None
+
+    def clip_level(self, v: dict):
+        """The raw level (DN) where the samples clip, or None."""
+        return None
+
+    def region(self, obs):
+        """The pixels (H, W bool) this term alone acts on (e.g. the depth edges), or None: the
+        ranking also starts its fit from the core fitted without them."""
         return None
 
     def outlier_rate(self, v: dict):
@@ -142,6 +171,14 @@ class Term:
         """Parameters it counts beyond ``specs`` (closed-form estimates: their effective degrees
         of freedom)."""
         return 0.0
+
+    # --- what the recording states -----------------------------------------------------------------
+
+    def baseline_stated(self, obs, model):
+        """``(values, note)`` when the recording states this physics of its camera (e.g. its
+        full well), so that the baseline holds it from the start and it is never a finding (the
+        note goes into the report), else None. ``model``: the baseline with its starting values."""
+        return None
 
     # --- the baseline without a scene -------------------------------------------------------------
 

@@ -79,6 +79,20 @@ class SaturationTerm(Term):
                 out += [{"saturation.level": float(torch.quantile(pk, q))} for q in START_QUANTILES]
         return out
 
+    def clip_level(self, v: dict):
+        return v["saturation.level"] / v["camera.conversion_gain"]
+
+    def baseline_stated(self, obs, model):
+        if obs.clip_level is None:
+            return None
+        g = model.values["camera.conversion_gain"]
+        note = (
+            f"the recording states its camera's clip level ({obs.clip_level:g} "
+            f"{obs.amplitude_unit}: full well or ADC top code): the baseline clips the raw "
+            "samples there (saturation at that level is the camera's own, not a finding)"
+        )
+        return {"saturation.level": obs.clip_level * g}, note
+
     def describe(self, model, obs, pred) -> dict:
         from ..model import predict  # late: the model imports the catalogue
 
