@@ -96,7 +96,7 @@ def _starts(term: Term, base_train: DiagnosisModel, obs, ctx, start_values) -> l
         # to the misfit yet) and end far better (a clip level found once the noise is right)
         starts.append(_try(alt, term, alt_init, obs, ctx))
     region = term.region(obs)
-    if region is not None and bool(region.any()):
+    if region is not None and _holds_the_outliers(region, base_train, obs, ctx):
         # the core fitted without the pixels the term acts on: a misfit there (mixed pixels
         # far from either surface) bends the noise law of the current model, which the term's
         # fit from it may not undo within its iterations
@@ -104,6 +104,20 @@ def _starts(term: Term, base_train: DiagnosisModel, obs, ctx, start_values) -> l
         core, _ = fit(base_train, obs, sub, "train", iters=CANDIDATE_ITERS)
         starts.append(_try(core, term, initial_values(term.name, core, obs, ctx), obs, ctx))
     return [s for s in starts if s is not None]
+
+
+def _holds_the_outliers(region, model, obs, ctx) -> bool:
+    """Whether ``region`` holds the depth pixels beyond 5 sd of ``model`` at least twice as
+    often as its share of the pixels (else the core fitted without it is not worth a fit)."""
+    with torch.no_grad():
+        p = predict(model, obs, scene=ctx.scene)
+    z = (obs.m_d - p.mu_d).abs() / torch.sqrt(p.sd_d**2 / obs.n.clamp_min(1) + p.tau_d**2)
+    far = (z > 5) & ctx.mask_d
+    n_far, n = int(far.sum()), int(ctx.mask_d.sum())
+    if n_far == 0 or n == 0:
+        return False
+    share = float((region & ctx.mask_d).sum()) / n
+    return float((far & region).sum()) / n_far >= 2 * share
 
 
 def rank(
