@@ -158,6 +158,10 @@ def test_cli_names_a_planted_cyclic_error_and_the_model_reloads(files, tmp_path,
         assert e["terms"] and all(CATALOGUE[t].effect == e["name"] for t in e["terms"])
         assert e["score"] > 0 and e["delta_aic"] < 0 and isinstance(e["params"], dict)
         assert isinstance(e["where"], list)
+    md = (out / "report.md").read_text()
+    assert "| `cyclic_error` | `cyclic_error` |" in md  # the effect and the form that modelled it
+    assert "the evidence" in md
+    assert isinstance(rep["also_consistent_with"], list)
     cyc = rep["effects"][0]["params"]
     # 6 % third harmonic at N = 4: phase error 0.06 sin(4 phi) rad, peak to peak
     # 2 * 0.06 * c / (4 pi f) ~ 143 mm

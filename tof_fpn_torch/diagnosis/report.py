@@ -92,13 +92,26 @@ def markdown(report: dict, figures: list[str]) -> str:
         lines.append(f"- the baseline holds: {', '.join(held)}")
     lines += ["", f"**Verdict: {', '.join(report['verdict'])}**", ""]
     if report["effects"]:
-        lines += ["| effect | held-out gain (nats) | delta AIC | parameters |", "|---|---|---|---|"]
+        lines += [
+            "| effect | form (terms) | held-out gain (nats) | delta AIC | parameters |",
+            "|---|---|---|---|---|",
+        ]
         for e in report["effects"]:
             ps = ", ".join(f"{k} = {_num(v)}" for k, v in e["params"].items())
-            lines.append(f"| `{e['name']}` | {_num(e['score'])} | {_num(e['delta_aic'])} | {ps} |")
+            forms = ", ".join(f"`{t}`" for t in e.get("terms", [e["name"]]))
+            lines.append(
+                f"| `{e['name']}` | {forms} | {_num(e['score'])} | {_num(e['delta_aic'])} | {ps} |"
+            )
         lines.append("")
+        also = report.get("also_consistent_with") or []
+        if also:
+            lines += [
+                "Also consistent with (significant on their own, not beyond the effects named): "
+                + ", ".join(f"`{a}`" for a in also),
+                "",
+            ]
         for e in report["effects"]:
-            lines.append(f"### `{e['name']}`: where")
+            lines.append(f"### `{e['name']}`: the evidence (where it was located)")
             for w in e["where"]:
                 lines.append(f"- {_where_text(w)}")
             lines.append("")
