@@ -91,32 +91,7 @@ def markdown(report: dict, figures: list[str]) -> str:
             )
         lines.append(f"- the baseline holds: {', '.join(held)}")
     lines += ["", f"**Verdict: {', '.join(report['verdict'])}**", ""]
-    if report["effects"]:
-        lines += [
-            "| effect | form (terms) | held-out gain (nats) | delta AIC | parameters |",
-            "|---|---|---|---|---|",
-        ]
-        for e in report["effects"]:
-            ps = ", ".join(f"{k} = {_num(v)}" for k, v in e["params"].items())
-            forms = ", ".join(f"`{t}`" for t in e.get("terms", [e["name"]]))
-            lines.append(
-                f"| `{e['name']}` | {forms} | {_num(e['score'])} | {_num(e['delta_aic'])} | {ps} |"
-            )
-        lines.append("")
-        also = report.get("also_consistent_with") or []
-        if also:
-            lines += [
-                "Also consistent with (significant on their own, not beyond the effects named): "
-                + ", ".join(f"`{a}`" for a in also),
-                "",
-            ]
-        for e in report["effects"]:
-            lines.append(f"### `{e['name']}`: the evidence (where it was located)")
-            for w in e["where"]:
-                lines.append(f"- {_where_text(w)}")
-            lines.append("")
-    else:
-        lines += ["No catalogue term improves the held-out likelihood significantly.", ""]
+    lines += _effects_md(report)
     fb, fa = report["fit"]["before"], report["fit"]["after"]
     lines += ["## Fit before / after", "", "| | before | after |", "|---|---|---|"]
     for key, label in (
@@ -198,3 +173,36 @@ def write_outputs(files: dict[str, bytes], out_dir) -> list[str]:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return [os.path.join(str(out_dir), n) for n in files]
+
+
+def _effects_md(report: dict) -> list[str]:
+    """The effects named: the table (effect, form, gain, AIC, parameters), what else is
+    consistent, and where each was located."""
+    lines: list[str] = []
+    if report["effects"]:
+        lines += [
+            "| effect | form (terms) | held-out gain (nats) | delta AIC | parameters |",
+            "|---|---|---|---|---|",
+        ]
+        for e in report["effects"]:
+            ps = ", ".join(f"{k} = {_num(v)}" for k, v in e["params"].items())
+            forms = ", ".join(f"`{t}`" for t in e.get("terms", [e["name"]]))
+            lines.append(
+                f"| `{e['name']}` | {forms} | {_num(e['score'])} | {_num(e['delta_aic'])} | {ps} |"
+            )
+        lines.append("")
+        also = report.get("also_consistent_with") or []
+        if also:
+            lines += [
+                "Also consistent with (significant on their own, not beyond the effects named): "
+                + ", ".join(f"`{a}`" for a in also),
+                "",
+            ]
+        for e in report["effects"]:
+            lines.append(f"### `{e['name']}`: the evidence (where it was located)")
+            for w in e["where"]:
+                lines.append(f"- {_where_text(w)}")
+            lines.append("")
+    else:
+        lines += ["No catalogue term improves the held-out likelihood significantly.", ""]
+    return lines
