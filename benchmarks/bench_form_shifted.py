@@ -140,6 +140,10 @@ def one(job: dict) -> dict:
     out["cpu_seconds"] = time.process_time() - c0
     out["found"] = [e["name"] for e in diag.report["effects"]]
     out["top1"] = out["found"][0] if out["found"] else "none"
+    out["scores"] = [
+        {k: e.get(k) for k in ("name", "terms", "score", "drop_delta_aic")}
+        for e in diag.report["effects"]
+    ]
     out["expected"] = fsg.EXPECTED.get(job["effect"]) if job["effect"] else "none"
     out["truth"] = {k: v for k, v in gen["truth"].items() if k != "effect"}
     return out

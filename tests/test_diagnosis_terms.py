@@ -101,6 +101,7 @@ def test_the_catalogue_order_is_kept():
         "noise_floor",
         "impulsive_pixels",
         "temporal_drift",
+        "temporal_drift_frames",
     }
 
 

@@ -56,6 +56,7 @@ from .terms.amplitude_bias import AmplitudeBiasTerm
 from .terms.amplitude_bias_shape import AmplitudeBiasShapeTerm
 from .terms.base import Term
 from .terms.cyclic_error import CyclicErrorTerm
+from .terms.cyclic_error_series import CyclicErrorSeriesTerm
 from .terms.flying_pixels import FlyingPixelsTerm
 from .terms.fpn_pattern import FPNPatternTerm
 from .terms.fpn_pixel_offsets import FPNPixelOffsetsTerm
@@ -67,6 +68,7 @@ from .terms.phase_wrapping import PhaseWrappingTerm
 from .terms.pixel_gain import PixelGainTerm
 from .terms.saturation import SaturationTerm
 from .terms.temporal_drift import TemporalDriftTerm
+from .terms.temporal_drift_frames import TemporalDriftFramesTerm
 from .terms.vignetting import VignettingTerm
 
 __all__ = [
@@ -95,6 +97,8 @@ TERMS: tuple[Term, ...] = (
     AmplitudeBiasShapeTerm(),
     FPNPixelOffsetsTerm(),
     MixedPixelsTerm(),
+    CyclicErrorSeriesTerm(),
+    TemporalDriftFramesTerm(),
 )
 
 #: name -> term

@@ -26,6 +26,7 @@ __all__ = [
     "INLIER_Z",
     "evaluate",
     "fit",
+    "hessian",
     "init_model",
     "robust_start",
 ]
@@ -90,9 +91,12 @@ def fit(
     free: list | None = None,
     iters: int = FIT_ITERS,
     rounds: int = 2,
+    hint: dict | None = None,
 ) -> tuple[DiagnosisModel, float]:
     """Fit ``model`` to the ``sel`` pixels (``all``, ``train``); ``free``: the keys to fit
-    (default every scalar). Returns the fitted copy and its NLL (nats)."""
+    (default every scalar); ``hint``: Hessian entries of the same objective at a nearby model
+    (:func:`hessian`), taken in the whitening instead of finite differences of those keys (only a preconditioner: the optimum does not depend on it). Returns the fitted copy and
+    its NLL (nats)."""
     model = model.copy()
     specs = [s for s in model.specs() if free is None or s.key in free]
     n_obs = max(n_observations(obs, ctx, sel), 1.0)
@@ -115,7 +119,7 @@ def fit(
                 model = _readout_step(model, obs, ctx, sel)
                 if first and READOUT_KEYS[0] in model.profiles:
                     tmat = None  # the objective changed: a fresh Hessian (the old one can stall)
-            model, val, tmat = _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat)
+            model, val, tmat = _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat, hint)
             if last - val < FIT_TOL:
                 break
             last = val
@@ -152,12 +156,10 @@ def _blend(old: DiagnosisModel, new: DiagnosisModel, share: float) -> DiagnosisM
     return out
 
 
-def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
-    """L-BFGS in whitened variables: the Hessian of the NLL at the start (finite differences of
-    the autograd gradient, eigenvalues made positive) maps a unit step to one standard error of
-    every parameter combination, so the badly conditioned directions (read noise vs shot noise,
-    amplitude vs conversion gain) converge in a few iterations. Returns the model, its NLL and
-    the whitening matrix (passed back in, a second round reuses it)."""
+def _objective(model, obs, ctx, sel, specs, n_obs):
+    """``(objective, u0, values, keys, charges)``: the NLL per observation of the ``sel`` pixels
+    as a function of the unconstrained values ``u`` of ``specs`` (None outside the physical
+    range), its starting point and the map from ``u`` to the model's values."""
     keys = [s.key for s in specs]
     charges = [s.key for s in specs if s.charge]
     # a stated charge (not fitted) is stated in DN: it moves with the gain too
@@ -184,8 +186,31 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None):
             return None
         return out if bool(torch.isfinite(out)) else None
 
+    return objective, u0, values, keys, charges
+
+
+def hessian(model: DiagnosisModel, obs, ctx, sel: str = "all", free=None) -> dict | None:
+    """The Hessian of :func:`fit`'s objective (NLL per observation of the ``sel`` pixels, in the
+    unconstrained variables) at ``model`` for the keys ``free``: ``{"keys", "matrix"}``, a
+    ``hint`` for fits of models near it (e.g. each candidate term added to ``model``: the block
+    of the keys they share is taken from here, the term's rows are computed). None where the
+    objective is undefined."""
+    specs = [s for s in model.specs() if free is None or s.key in free]
+    n_obs = max(n_observations(obs, ctx, sel), 1.0)
+    objective, u0, _, keys, _ = _objective(model, obs, ctx, sel, specs, n_obs)
+    _, hess = _hessian(objective, u0)
+    return None if hess is None else {"keys": keys, "matrix": hess}
+
+
+def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None, hint=None):
+    """L-BFGS in whitened variables: the Hessian of the NLL at the start (finite differences of
+    the autograd gradient, eigenvalues made positive) maps a unit step to one standard error of
+    every parameter combination, so the badly conditioned directions (read noise vs shot noise,
+    amplitude vs conversion gain) converge in a few iterations. Returns the model, its NLL and
+    the whitening matrix (passed back in, a second round reuses it)."""
+    objective, u0, values, keys, charges = _objective(model, obs, ctx, sel, specs, n_obs)
     if tmat is None:
-        f0, tmat = _whitening(objective, u0)
+        f0, tmat = _whitening(objective, u0, _known(hint, keys))
         if f0 is None:
             return model, math.inf, None
     else:
@@ -218,21 +243,53 @@ def _gradient(objective, u: torch.Tensor):
     return out.detach(), g
 
 
-def _whitening(objective, u0: torch.Tensor):
-    """``(objective(u0), T)``: ``T`` maps a unit step to one standard error of every parameter
-    combination (``V diag(1 / sqrt(|lambda|))`` of the finite-difference Hessian);
-    ``(None, None)`` where the objective is undefined at ``u0``."""
+def _known(hint: dict | None, keys: list) -> tuple | None:
+    """``(indices, block)``: the entries of ``hint`` (:func:`hessian`) among ``keys``."""
+    if hint is None:
+        return None
+    pos = {k: i for i, k in enumerate(hint["keys"])}
+    idx = [i for i, k in enumerate(keys) if k in pos]
+    if not idx:
+        return None
+    src = torch.tensor([pos[keys[i]] for i in idx])
+    return idx, hint["matrix"][src][:, src]
+
+
+def _hessian(objective, u0: torch.Tensor, known=None):
+    """``(objective(u0), H)``: finite differences of the autograd gradient, the rows of the
+    ``known`` indices' block taken from ``known = (indices, block)`` (their rows against the
+    other keys from the computed rows, by symmetry); ``(None, None)`` where undefined."""
     n = u0.numel()
     f0, gr0 = _gradient(objective, u0)
     if f0 is None:
         return None, None
     hess = torch.zeros(n, n, dtype=torch.float64)
+    have = set(known[0]) if known is not None else set()
     step = 1e-4
     for i in range(n):
+        if i in have:
+            continue
         _, gi = _gradient(objective, u0 + step * torch.eye(n, dtype=torch.float64)[i])
         ok = gi is not None and bool(torch.isfinite(gi).all())
         hess[i] = (gi - gr0) / step if ok else 0.0
-    hess = 0.5 * (hess + hess.T)
+    if known is not None:
+        idx = torch.tensor(known[0])
+        rest = [i for i in range(n) if i not in have]
+        hess[idx.view(-1, 1), idx.view(1, -1)] = known[1]
+        if rest:
+            r = torch.tensor(rest)
+            hess[idx.view(-1, 1), r.view(1, -1)] = hess[r.view(-1, 1), idx.view(1, -1)].T
+    return f0, 0.5 * (hess + hess.T)
+
+
+def _whitening(objective, u0: torch.Tensor, known=None):
+    """``(objective(u0), T)``: ``T`` maps a unit step to one standard error of every parameter
+    combination (``V diag(1 / sqrt(|lambda|))`` of the Hessian, :func:`_hessian`);
+    ``(None, None)`` where the objective is undefined at ``u0``."""
+    f0, hess = _hessian(objective, u0, known)
+    if f0 is None:
+        return None, None
+    n = u0.numel()
     lam, vec = torch.linalg.eigh(hess)
     top = float(lam.abs().max()) if n else 1.0
     lam = lam.abs().clamp_min(max(top, 1e-30) * 1e-8)

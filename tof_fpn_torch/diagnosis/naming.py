@@ -18,13 +18,14 @@ from dataclasses import replace
 import torch
 
 from .catalogue import CATALOGUE, Term, implemented
-from .fit import FIT_ITERS, evaluate, fit
+from .fit import FIT_ITERS, evaluate, fit, hessian
 from .model import CORE_SPECS, DiagnosisModel, predict
 from .threads import map_threads
 
 __all__ = [
     "CANDIDATE_ITERS",
     "CONTENDER_SHARE",
+    "FORM_TOLERANCE",
     "MIN_DAIC",
     "MIN_GAIN",
     "initial_values",
@@ -40,6 +41,11 @@ CANDIDATE_ITERS: int = 20
 #: Candidates whose held-out gain is within this share of the best are fitted on (up to
 #: ``fit.FIT_ITERS`` per round) before the ranking is taken.
 CONTENDER_SHARE: float = 0.25
+#: A further effect is named only when its held-out gain is at least this share of the largest
+#: named effect's: a named effect whose true form differs from every modelled one by a relative
+#: error ``e`` in shape leaves a misfit of about ``e^2`` of its gain, which some other term can
+#: take up; 0.1 allows ``e`` of about 30 % (set on development recordings, docs/diagnosis.md).
+FORM_TOLERANCE: float = 0.1
 #: the owners of the core values taken from the robust start
 _CORE_OWNERS = ("photons", "camera", "readout_fpn")
 
@@ -133,6 +139,9 @@ def rank(
         base_train, _ = fit(model, obs, ctx, "train")
     nll_train = evaluate(base_train, obs, ctx, "train")
     nll_test = evaluate(base_train, obs, ctx, "test")
+    # the core block of the Hessian, once: every candidate starts near the current model, and
+    # its whitening computes only the term's own rows
+    hint = hessian(base_train, obs, ctx, "train", free=[s.key for s in CORE_SPECS])
 
     def one(name: str) -> dict | None:
         term = CATALOGUE[name]
@@ -142,7 +151,9 @@ def rank(
         # every core value is free: a current model that misfits has its noise law and FPN
         # bent to the misfit, and the term must be able to undo that
         free = [s.key for s in term.specs] + [s.key for s in CORE_SPECS]
-        fits = [fit(s, obs, ctx, "train", free=free, iters=CANDIDATE_ITERS) for s in starts]
+        fits = [
+            fit(s, obs, ctx, "train", free=free, iters=CANDIDATE_ITERS, hint=hint) for s in starts
+        ]
         cand = min(fits, key=lambda t: t[1])[0]
         return _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free)
 
@@ -161,7 +172,7 @@ def rank(
         def on(r: dict) -> dict:
             if r["score"] is None or r["score"] < (1 - CONTENDER_SHARE) * top:
                 return r
-            cand, _ = fit(r["model"], obs, ctx, "train", free=r["free"], iters=FIT_ITERS)
+            cand, _ = fit(r["model"], obs, ctx, "train", free=r["free"], iters=FIT_ITERS, hint=hint)
             return _score(r["name"], cand, base_train, nll_train, nll_test, obs, ctx, r["free"])
 
         out = map_threads(on, out)

@@ -137,6 +137,12 @@ def adapt_model(model: DiagnosisModel, obs) -> DiagnosisModel:
                 f"baseline model's {key} profile has {prof.numel()} entries, the recording "
                 f"{n} {what}: the model was fitted to frames of another size"
             )
+    prof = model.profiles.get("frame_delays")
+    if prof is not None and prof.numel() != obs.frames:
+        raise ValueError(
+            f"baseline model's per-frame drift has {prof.numel()} frames, the recording "
+            f"{obs.frames}: the model was fitted to another recording's frames"
+        )
     for key in READOUT_KEYS:
         prof = model.profiles.get(key)
         if prof is not None and prof.shape[-1] != w:

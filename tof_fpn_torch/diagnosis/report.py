@@ -12,6 +12,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from .naming import FORM_TOLERANCE
 from .persist import model_to_dict
 
 __all__ = ["markdown", "render", "write_outputs"]
@@ -194,7 +195,9 @@ def _effects_md(report: dict) -> list[str]:
         also = report.get("also_consistent_with") or []
         if also:
             lines += [
-                "Also consistent with (significant on their own, not beyond the effects named): "
+                "Also consistent with (significant on their own, not beyond the effects named: "
+                "below a refit of their other forms, or within what a misfit of their form "
+                f"leaves, {FORM_TOLERANCE:g} of their held-out gain): "
                 + ", ".join(f"`{a}`" for a in also),
                 "",
             ]

@@ -17,7 +17,7 @@ from .fit import FIT_TOL, evaluate, fit, init_model, robust_start
 from .likelihood import Context, make_context
 from .locate import Stat, bootstrap, locate, statistics
 from .model import DiagnosisModel, predict
-from .naming import MIN_DAIC, rank
+from .naming import FORM_TOLERANCE, MIN_DAIC, rank
 from .persist import adapt_model, load_model
 from .summary import baseline_summary, describe_effects, fit_summary, report_content
 from .threads import map_threads
@@ -296,14 +296,23 @@ def _next_candidates(ranking, name, current, obs, ctx, before, only) -> list[str
 
 def _one_name(ranking: list, effects: list) -> list:
     """The ranking with a new effect's candidates significant only when they gain more than
-    every form of the effects already named (which are ranked as they are)."""
+    every form of the effects already named (which are ranked as they are) and at least
+    :data:`FORM_TOLERANCE` of the largest named effect's held-out gain (what a misfit of its
+    form could leave)."""
     named = {e["name"] for e in effects}
     forms = [r["score"] for r in ranking if CATALOGUE[r["name"]].effect in named]
     bar = max([s for s in forms if s is not None], default=-math.inf)
+    gains = [e["heldout_gain"] for e in effects if e.get("heldout_gain") is not None]
+    leftover = FORM_TOLERANCE * max(gains, default=0.0)
     for r in ranking:
-        if CATALOGUE[r["name"]].effect not in named and r["significant"] and r["score"] <= bar:
+        if CATALOGUE[r["name"]].effect in named or not r["significant"]:
+            continue
+        if r["score"] <= bar:
             r["significant"] = False
             r["below_named_forms"] = True
+        elif r["score"] < leftover:
+            r["significant"] = False
+            r["within_form_tolerance"] = True
     return ranking
 
 

@@ -104,7 +104,8 @@ def also_consistent(effects: list, rankings: list) -> list[str]:
     for ranking in rankings:
         for r in ranking:
             eff = CATALOGUE[r["name"]].effect
-            ok = r["significant"] or r.get("below_named_forms", False)
+            held = r.get("below_named_forms", False) or r.get("within_form_tolerance", False)
+            ok = r["significant"] or held
             if ok and eff not in named and r["score"] is not None:
                 out[eff] = max(out.get(eff, -math.inf), r["score"])
     return sorted(out, key=lambda k: -out[k])

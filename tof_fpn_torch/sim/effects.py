@@ -43,7 +43,9 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .camera import SPEED_OF_LIGHT_AIR, _as_float, _check_range
+from .camera import _as_float, _check_range
+from .cyclic import CyclicError
+from .phasor import _phase_per_metre, _stacked, fundamental, rotate_fundamental
 from .terms import SimState, Term, _num, _randn
 
 __all__ = [
@@ -79,36 +81,6 @@ STAGE: dict[str, int] = {
     "adc": 70,
     "impulsive": 80,
 }
-
-
-def _angles(n: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    t = torch.arange(n, dtype=torch.float64, device=like.device) * (2 * math.pi / n)
-    return torch.cos(t).to(like.dtype).view(1, n, 1, 1), torch.sin(t).to(like.dtype).view(
-        1, n, 1, 1
-    )
-
-
-def fundamental(samples: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(Re X_1, Im X_1)`` of (B, N, H, W) samples, each (B, 1, H, W)."""
-    c, s = _angles(samples.shape[1], samples)
-    return (samples * c).sum(1, keepdim=True), -(samples * s).sum(1, keepdim=True)
-
-
-def rotate_fundamental(samples: torch.Tensor, phase, scale=None) -> torch.Tensor:
-    """Multiply the first harmonic by ``scale e^{j phase}`` (delay / gain of the modulated part);
-    the offset and the other DFT bins stay. ``phase``, ``scale``: broadcastable to (B, 1, H, W)."""
-    n = samples.shape[1]
-    c, s = _angles(n, samples)
-    xr, xi = fundamental(samples)
-    cp, sp = torch.cos(phase), torch.sin(phase)
-    if scale is not None:
-        cp, sp = cp * scale, sp * scale
-    yr, yi = xr * cp - xi * sp, xr * sp + xi * cp
-    return samples + (2.0 / n) * ((yr - xr) * c - (yi - xi) * s)
-
-
-def _phase_per_metre(camera) -> float:
-    return 4.0 * math.pi * _as_float(camera.modulation_frequency, "f") / SPEED_OF_LIGHT_AIR
 
 
 def _profile(values, length: int, what: str, like: torch.Tensor) -> torch.Tensor:
@@ -258,12 +230,16 @@ class TemporalDrift(Term):
 
     Frame ``f`` of a run is at ``t = f * frame_interval`` (s). Args: ``depth_step`` D (m),
     ``amplitude_step`` a (relative, > -1), ``time_constant`` tau (s, > 0), ``frame_interval`` (s).
+    A drift of any shape instead: ``frame_delays`` (m) and ``frame_light`` (relative change,
+    > -1), one per frame of the run (then the warm-up curve is unused).
     """
 
     depth_step: float = 0.0
     amplitude_step: float = 0.0
     time_constant: float = 1.0
     frame_interval: float = 1.0 / 30.0
+    frame_delays: tuple = ()
+    frame_light: tuple = ()
     name: str = field(default="temporal_drift", init=False)
 
     def __post_init__(self) -> None:
@@ -275,6 +251,15 @@ class TemporalDrift(Term):
             raise ValueError("TemporalDrift.amplitude_step must be > -1")
         _check_range(self.time_constant, "TemporalDrift.time_constant", 0.0, strict=True, unit=" s")
         _check_range(self.frame_interval, "TemporalDrift.frame_interval", 0.0, strict=True)
+        if len(self.frame_delays) != len(self.frame_light):
+            raise ValueError(
+                "TemporalDrift.frame_delays and .frame_light must have one entry per frame each, "
+                f"got {len(self.frame_delays)} and {len(self.frame_light)}"
+            )
+        if any(_as_float(x, "TemporalDrift.frame_light") <= -1 for x in self.frame_light):
+            raise ValueError("TemporalDrift.frame_light entries must be > -1")
+        for x in self.frame_delays:
+            _as_float(x, "TemporalDrift.frame_delays")
         return self
 
     def curve(self, times: torch.Tensor) -> torch.Tensor:
@@ -285,6 +270,17 @@ class TemporalDrift(Term):
         s = state.expand().samples
         b = s.shape[0]
         frame = torch.arange(b, device=s.device, dtype=s.dtype) % state.frames
+        if self.frame_delays:
+            if len(self.frame_delays) < state.frames:
+                raise ValueError(
+                    f"TemporalDrift has {len(self.frame_delays)} frame delays, the run "
+                    f"{state.frames} frames"
+                )
+            idx = frame.long()
+            d = _stacked(self.frame_delays, s)[idx].view(b, 1, 1, 1)
+            g = _stacked(self.frame_light, s)[idx].view(b, 1, 1, 1)
+            state.samples = rotate_fundamental(s, d * _phase_per_metre(state.camera), 1.0 + g)
+            return state
         u = self.curve(frame * _as_float(self.frame_interval, "frame_interval")).view(b, 1, 1, 1)
         phase = u * _num(self.depth_step, s) * _phase_per_metre(state.camera)
         state.samples = rotate_fundamental(s, phase, 1.0 + u * _num(self.amplitude_step, s))
@@ -313,58 +309,6 @@ class PhaseJitter(Term):
         state.samples = rotate_fundamental(
             s, xi * (_num(self.sigma, s) * _phase_per_metre(state.camera))
         )
-        return state
-
-
-@dataclass
-class CyclicError(Term):
-    """Non-sinusoidal correlation ("wiggling"): harmonics of the fundamental.
-
-    ``R_n = B + A [cos(psi_n) + sum_h alpha_h cos(h psi_n) + beta_h sin(h psi_n)]`` with
-    ``psi_n = phi + 2 pi n / N``. Harmonic ``h`` aliases into the decoded phase (for N = 4 the
-    3rd and 5th give a depth error of period ``c_L / (8 f)``). Args: ``harmonics`` (ints >= 2),
-    ``cos_terms`` alpha_h and ``sin_terms`` beta_h relative to the fundamental.
-    """
-
-    harmonics: tuple = (3, 5)
-    cos_terms: tuple = (0.0, 0.0)
-    sin_terms: tuple = (0.0, 0.0)
-    name: str = field(default="cyclic_error", init=False)
-
-    def __post_init__(self) -> None:
-        self.validate()
-
-    def validate(self) -> CyclicError:
-        k = len(self.harmonics)
-        if len(self.cos_terms) != k or len(self.sin_terms) != k:
-            raise ValueError("CyclicError: one cos_terms and sin_terms entry per harmonic")
-        for h in self.harmonics:
-            if isinstance(h, bool) or not isinstance(h, int) or h < 2:
-                raise ValueError(f"CyclicError.harmonics must be ints >= 2, got {self.harmonics}")
-        for v in (*self.cos_terms, *self.sin_terms):
-            _as_float(v, "CyclicError terms")
-        return self
-
-    def apply(self, state: SimState) -> SimState:
-        s = state.samples
-        n = s.shape[1]
-        xr, xi = fundamental(s)
-        mag = torch.sqrt(xr * xr + xi * xi + 1e-12)
-        amp = mag * (2.0 / n)
-        theta = torch.arange(n, dtype=torch.float64, device=s.device) * (2 * math.pi / n)
-        ur, ui = (xr / mag), (xi / mag)  # e^{j phi}
-        add = torch.zeros_like(s)
-        for h, a, b in zip(self.harmonics, self.cos_terms, self.sin_terms, strict=True):
-            # e^{j h psi_n} = e^{j h phi} e^{j h theta_n}
-            pr, pi_ = torch.ones_like(ur), torch.zeros_like(ui)
-            for _ in range(h):
-                pr, pi_ = pr * ur - pi_ * ui, pr * ui + pi_ * ur
-            ct = torch.cos(h * theta).to(s.dtype).view(1, n, 1, 1)
-            st = torch.sin(h * theta).to(s.dtype).view(1, n, 1, 1)
-            cos_h = pr * ct - pi_ * st
-            sin_h = pr * st + pi_ * ct
-            add = add + _num(a, s) * cos_h + _num(b, s) * sin_h
-        state.samples = s + amp * add
         return state
 
 

@@ -16,7 +16,7 @@ import torch.nn.functional as F
 
 from .. import constants as K
 from .camera import _as_float, _check_range
-from .effects import _phase_per_metre, rotate_fundamental
+from .phasor import _phase_per_metre, rotate_fundamental
 from .relay import scene_relay
 from .terms import SimState, Term, _num
 

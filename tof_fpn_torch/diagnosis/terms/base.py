@@ -136,9 +136,9 @@ class Term:
         """The range (m) the depth is folded into, or None."""
         return None
 
-    def frame_means(self, v: dict, obs):
+    def frame_means(self, v: dict, obs, model=None):
         """Per-frame change of the means: ``(depth shift (T, 1), amplitude factor (T, 1))``, or
-        None."""
+        None (``model``: for a term whose per-frame values are profiles of the model)."""
         return None
 
     def edge_mixture(self, v: dict):

@@ -37,7 +37,7 @@ class TemporalDriftTerm(Term):
             model.frame_interval,
         )
 
-    def frame_means(self, v: dict, obs):
+    def frame_means(self, v: dict, obs, model=None):
         u = (1.0 - torch.exp(-obs.times / v["temporal_drift.time_constant"])).view(obs.frames, 1)
         return u * v["temporal_drift.depth_step"], 1.0 + u * v["temporal_drift.amplitude_step"]
 
