@@ -248,3 +248,34 @@ def test_frame_member_names_a_drift_of_another_course():
     prof = out.model.profiles["frame_delays"]
     c = torch.corrcoef(torch.stack([prof, walk.to(prof.dtype)]))[0, 1]
     assert float(c) > 0.9  # 0.94 measured (per-frame estimates within about 1 mm)
+
+
+def test_knee_member_names_a_compression_of_another_shape():
+    """Bright samples compressed by a tanh curve (not the catalogue's clip nor the member's
+    softplus), the brightest tenth of the pixels well into it, are named ``saturation`` through
+    its soft-knee member."""
+    from dataclasses import dataclass, field
+
+    from test_diagnosis import _recording, _sim
+
+    from tof_fpn_torch.diagnosis import diagnose
+    from tof_fpn_torch.sim.terms import Term as SimTerm
+
+    @dataclass
+    class TanhKnee(SimTerm):
+        start: float = 0.0  # e-, set from the first samples it sees
+        name: str = field(default="saturation", init=False)
+
+        def apply(self, state):
+            s = state.samples
+            if self.start == 0.0:  # the knee starts at the 80th percentile of the peaks
+                self.start = float(torch.quantile(s.amax(1).flatten().double(), 0.8))
+            k = 0.5 * self.start
+            over = (s - self.start).clamp_min(0)
+            state.samples = torch.where(s > self.start, self.start + k * torch.tanh(over / k), s)
+            return state
+
+    rec, scene = _recording(TanhKnee(), seed=6, sim=_sim())
+    out = diagnose(rec, scene, replicates=0)
+    assert out.report["verdict"] == ["saturation"]
+    assert out.report["effects"][0]["terms"] == ["saturation_knee"]

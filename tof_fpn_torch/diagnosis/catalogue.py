@@ -67,6 +67,7 @@ from .terms.noise_floor import NoiseFloorTerm
 from .terms.phase_wrapping import PhaseWrappingTerm
 from .terms.pixel_gain import PixelGainTerm
 from .terms.saturation import SaturationTerm
+from .terms.saturation_knee import SaturationKneeTerm
 from .terms.temporal_drift import TemporalDriftTerm
 from .terms.temporal_drift_frames import TemporalDriftFramesTerm
 from .terms.vignetting import VignettingTerm
@@ -99,6 +100,7 @@ TERMS: tuple[Term, ...] = (
     MixedPixelsTerm(),
     CyclicErrorSeriesTerm(),
     TemporalDriftFramesTerm(),
+    SaturationKneeTerm(),
 )
 
 #: name -> term

@@ -1,0 +1,85 @@
+"""``saturation`` in the shape of the data: a soft compression of the raw samples over a knee
+of free width (a flexible member of the ``saturation`` effect).
+
+A sensor's limit is not always a hard full-well clip: an anti-blooming drain, a logarithmic
+pixel or a non-linear ADC compress the bright samples gradually. This member compresses every
+sample ``R`` (e-) as ``level - knee softplus((level - R) / knee)``: ``R`` itself well below the
+level, approaching the level from below above it, the bend over about ``knee`` (two parameters;
+a knee near 0 is the hard clip). The compression is deterministic on the mean samples and scales
+each sample's shot and read noise by its slope ``sigmoid((level - R) / knee)``. Its signature is
+the effect's: the raw samples capped (an amplitude ceiling, a depth error growing towards it, the
+affected share rising with reflectance and nearness); the report names it ``saturation``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ...sim import Saturation
+from ..params import ParamSpec
+from .base import Term, r4
+from .saturation import START_QUANTILES, peak_samples
+
+__all__ = ["KNEE_SHARES", "SaturationKneeTerm"]
+
+#: starting knees as shares of the starting level
+KNEE_SHARES: tuple[float, ...] = (0.03, 0.15)
+
+
+class SaturationKneeTerm(Term):
+    """The level (e-) the samples approach and the knee's width (e-)."""
+
+    name = "saturation_knee"
+    signature = "saturation"
+    specs = (
+        ParamSpec("saturation_knee.level", "log", 1.0, "e-", charge=True),
+        ParamSpec("saturation_knee.knee", "log", 1.0, "e-", charge=True),
+    )
+    enters = "chain"
+    sim_name = "saturation"
+    axes = ("amp_mean|raw", "depth_mean|raw")
+    about = "soft compression of the raw samples towards a level over a knee of free width"
+    slow = True
+    restarts_from_robust_values = True
+
+    def simulator_term(self, v: dict, model):
+        return Saturation(v["saturation_knee.level"], v["saturation_knee.knee"])
+
+    def apply_mean(self, state, v: dict, model, chain):
+        s = state.samples
+        lv, kn = v["saturation_knee.level"], v["saturation_knee.knee"]
+        slope = torch.sigmoid((lv - s) / kn)
+        var_e = s.clamp_min(0) + v["camera.read_noise"] ** 2
+        prev = chain.sample_var if chain.sample_var is not None else var_e
+        state.samples = lv - kn * torch.nn.functional.softplus((lv - s) / kn)
+        chain.sample_var = prev * slope * slope
+        return state
+
+    def initial_values(self, model, obs, ctx, pred) -> list[dict]:
+        # as the clip's: levels at high quantiles of the largest raw sample (predicted, and
+        # implied by the observed amplitude), each with a narrow and a wide knee
+        g = model.values["camera.conversion_gain"]
+        out = []
+        for peaks in (
+            peak_samples(model, pred, pred.mu_d, pred.a0),
+            peak_samples(model, pred, obs.m_d, obs.m_a),
+        ):
+            pk = (peaks * g)[ctx.mask_a & torch.isfinite(peaks)]
+            if not pk.numel():
+                continue
+            for q in START_QUANTILES[::3]:
+                lv = float(torch.quantile(pk, q))
+                out += [
+                    {"saturation_knee.level": lv, "saturation_knee.knee": share * lv}
+                    for share in KNEE_SHARES
+                ]
+        return out
+
+    def describe(self, model, obs, pred) -> dict:
+        v = model.values
+        g = v["camera.conversion_gain"]
+        return {
+            "level_e": r4(v["saturation_knee.level"]),
+            "knee_e": r4(v["saturation_knee.knee"]),
+            "level_amplitude_units": r4(v["saturation_knee.level"] / g),
+        }
