@@ -33,6 +33,7 @@ from tof_fpn_torch.diagnosis.terms.base import ENTERS, Term
 from tof_fpn_torch.io import Recording, SceneData
 from tof_fpn_torch.sim import STAGE, Camera, Simulation, synthetic_scene
 from tof_fpn_torch.sim.readout import ADC, Photons, ReadNoise, ReadoutFPN, ShotNoise
+from tof_fpn_torch.sim.terms import SimState
 from tof_fpn_torch.sim.terms import Term as SimTerm
 
 DIAG = Path(diagnosis.__file__).parent
@@ -264,3 +265,33 @@ def test_term_starts_enters_the_model_and_is_described(setup, name):
     assert isinstance(desc, dict) and desc, name
     text = json.dumps(desc, allow_nan=False)
     assert json.loads(text) == desc
+
+
+def test_two_forms_of_one_effect_make_one_stage(setup):
+    """A model holding an effect in two forms (the physical term and a flexible member, same
+    simulator stage) exports one Simulation whose stage applies both in turn: its noise-free
+    run equals the two simulator terms applied one after the other."""
+    from tof_fpn_torch.sim import Joined
+
+    obs, model, ctx, scene = setup
+    for member in [t for t in TERMS if t.signature and t.enters == "chain"]:
+        phys = CATALOGUE[member.effect]
+        m = model
+        for term in (phys, member):
+            with torch.no_grad():
+                pred = predict(m, obs, scene=ctx.scene)
+            m = m.with_effect(term.name, term.initial_values(m, obs, ctx, pred)[0])
+            if term.closed_form:
+                with torch.no_grad():
+                    pred = predict(m, obs, scene=ctx.scene)
+                m = term.update_closed_form(m, obs, ctx, pred, "all")
+        sim = m.simulation()
+        joined = [t for t in sim.terms if isinstance(t, Joined)]
+        assert len(joined) == 1 and joined[0].name == phys.sim_name, member.name
+        a = phys.simulator_term(m.values, m)
+        b = member.simulator_term(m.values, m)
+        s = torch.rand(1, 4, 3, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+        s = 500.0 + 300.0 * s
+        one = joined[0].apply(SimState(m.camera, scene, s.clone(), None)).samples
+        two = b.apply(a.apply(SimState(m.camera, scene, s.clone(), None))).samples
+        assert torch.equal(one, two), member.name

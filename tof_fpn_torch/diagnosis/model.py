@@ -28,6 +28,7 @@ from ..sim import (
     ADC,
     STAGE,
     Camera,
+    Joined,
     Photons,
     ReadNoise,
     ReadoutFPN,
@@ -187,8 +188,15 @@ class DiagnosisModel:
         terms += [ReadNoise(), ADC(quantize=True)]
         for term in self.terms():
             t = term.simulator_term(v, self)
-            if t is not None:
+            if t is None:
+                continue
+            same = next((i for i, x in enumerate(terms) if x.name == t.name), None)
+            if same is None:
                 terms.append(t)
+            else:  # two forms of one effect: one stage, applied in turn
+                prev = terms[same]
+                parts = prev.parts if isinstance(prev, Joined) else (prev,)
+                terms[same] = Joined(parts + (t,), t.name)
         terms.sort(key=lambda t: STAGE.get(t.name, 50))
         return Simulation(self.simulation_camera(), terms)
 

@@ -67,7 +67,7 @@ from .optics import (
 from .readout import ADC, ImpulsivePixels, PixelOffset, ReadoutFPN, default_terms
 from .scenes import MATERIALS, Scene, planar_scene, synthetic_scene
 from .simulator import SimResult, Simulation, simulate
-from .terms import Photons, ReadNoise, ShotNoise, SimState, Term
+from .terms import Joined, Photons, ReadNoise, ShotNoise, SimState, Term
 
 __all__ = [
     "ADC",
@@ -104,6 +104,7 @@ __all__ = [
     "SimResult",
     "SimState",
     "Simulation",
+    "Joined",
     "Term",
     "add_depth_fpn",
     "add_depth_noise",

@@ -32,7 +32,7 @@ import torch
 from .camera import SPEED_OF_LIGHT_AIR, Camera, _check_range
 from .scenes import Scene
 
-__all__ = ["Photons", "ReadNoise", "ShotNoise", "SimState", "Term"]
+__all__ = ["Joined", "Photons", "ReadNoise", "ShotNoise", "SimState", "Term"]
 
 
 @dataclass
@@ -100,6 +100,28 @@ class Term:
             ):
                 out[f.name] = v
         return out
+
+
+@dataclass
+class Joined(Term):
+    """Terms applied in turn under one name: two forms of one effect at one stage of the chain
+    (e.g. the catalogue's cyclic error and a delay periodic in the phase). ``parts``: the terms;
+    ``name``: the stage's name (a :class:`Simulation` holds each name once)."""
+
+    parts: tuple = ()
+    name: str = "joined"
+
+    def validate(self) -> Joined:
+        for t in self.parts:
+            if not isinstance(t, Term):
+                raise ValueError(f"Joined.parts must be Term instances, got {type(t).__name__}")
+            t.validate()
+        return self
+
+    def apply(self, state: SimState) -> SimState:
+        for t in self.parts:
+            state = t.apply(state)
+        return state
 
 
 def _owned(x: torch.Tensor) -> bool:
