@@ -61,6 +61,7 @@ def _summary(diag) -> dict:
     out = {
         "verdict": rep["verdict"],
         "effects": rep["effects"],
+        "also_consistent_with": rep.get("also_consistent_with", []),
         "fit": rep["fit"],
         "located_before": [
             {k: w.get(k) for k in ("statistic", "axis", "excess_sigma", "spectrum") if k in w}
