@@ -19,7 +19,7 @@ from ...sim import Saturation
 from ..params import ParamSpec
 from .base import Term, r4
 
-__all__ = ["START_QUANTILES", "SaturationTerm", "peak_samples"]
+__all__ = ["START_QUANTILES", "SaturationTerm", "clipped_share", "peak_samples"]
 
 #: Quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
 #: which the level starts: a dense grid from the median to the 99.9th percentile, as a clip of
@@ -94,21 +94,24 @@ class SaturationTerm(Term):
         return {"saturation.level": obs.clip_level * g}, note
 
     def describe(self, model, obs, pred) -> dict:
-        from ..model import predict  # late: the model imports the catalogue
-
         v = model.values
-        g = v["camera.conversion_gain"]
         lv = v["saturation.level"]
-        # the largest raw sample the model predicts without the clip
-        with torch.no_grad():
-            p0 = predict(model.without(self.name), obs)
-        peak = peak_samples(model, p0, p0.mu_d, p0.a0)[obs.known] * g
-        # the chance that a pixel's largest sample, with its shot and read noise, is clipped in
-        # a frame, averaged over the pixels
-        sd = torch.sqrt(peak.clamp_min(0) + v["camera.read_noise"] ** 2)
-        clipped = torch.special.ndtr((peak - lv) / sd)
         return {
             "level_e": r4(lv),
-            "level_amplitude_units": r4(lv / g),
-            "share_of_pixels_clipped": r4(float(clipped.double().mean())),
+            "level_amplitude_units": r4(lv / v["camera.conversion_gain"]),
+            "share_of_pixels_clipped": r4(clipped_share(model, obs, self.name, lv)),
         }
+
+
+def clipped_share(model, obs, name: str, level: float) -> float:
+    """The chance that a pixel's largest raw sample, with its shot and read noise, passes
+    ``level`` (e-) in a frame, averaged over the pixels; the samples as the model predicts them
+    without its term ``name``."""
+    from ..model import predict  # late: the model imports the catalogue
+
+    v = model.values
+    with torch.no_grad():
+        p0 = predict(model.without(name), obs)
+    peak = peak_samples(model, p0, p0.mu_d, p0.a0)[obs.known] * v["camera.conversion_gain"]
+    sd = torch.sqrt(peak.clamp_min(0) + v["camera.read_noise"] ** 2)
+    return float(torch.special.ndtr((peak - level) / sd).double().mean())

@@ -18,7 +18,7 @@ import torch
 from ...sim import Saturation
 from ..params import ParamSpec
 from .base import Term, r4
-from .saturation import START_QUANTILES, peak_samples
+from .saturation import START_QUANTILES, clipped_share, peak_samples
 
 __all__ = ["KNEE_SHARES", "SaturationKneeTerm"]
 
@@ -78,8 +78,11 @@ class SaturationKneeTerm(Term):
     def describe(self, model, obs, pred) -> dict:
         v = model.values
         g = v["camera.conversion_gain"]
+        lv = v["saturation_knee.level"]
         return {
-            "level_e": r4(v["saturation_knee.level"]),
+            "level_e": r4(lv),
             "knee_e": r4(v["saturation_knee.knee"]),
-            "level_amplitude_units": r4(v["saturation_knee.level"] / g),
+            "level_amplitude_units": r4(lv / g),
+            # the share of pixels whose largest sample passes the level (a hard clip's share)
+            "share_of_pixels_clipped": r4(clipped_share(model, obs, self.name, lv)),
         }
