@@ -95,8 +95,9 @@ def fit(
 ) -> tuple[DiagnosisModel, float]:
     """Fit ``model`` to the ``sel`` pixels (``all``, ``train``); ``free``: the keys to fit
     (default every scalar); ``hint``: Hessian entries of the same objective at a nearby model
-    (:func:`hessian`), taken in the whitening instead of finite differences of those keys (only a preconditioner: the optimum does not depend on it). Returns the fitted copy and
-    its NLL (nats)."""
+    (:func:`hessian`), taken in the whitening instead of finite differences of those keys (a
+    preconditioner only: the optimum does not depend on it). Returns the fitted copy and its NLL
+    (nats)."""
     model = model.copy()
     specs = [s for s in model.specs() if free is None or s.key in free]
     n_obs = max(n_observations(obs, ctx, sel), 1.0)

@@ -11,6 +11,7 @@ as it is. How to add one: :mod:`~tof_fpn_torch.diagnosis.catalogue`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -18,7 +19,7 @@ import torch
 
 from ..params import ParamSpec
 
-__all__ = ["ENTERS", "Chain", "Term", "depth_residuals", "least_squares", "r4"]
+__all__ = ["ENTERS", "Chain", "Term", "depth_residuals", "least_squares", "r4", "shrink_to_zero"]
 
 #: how a term can enter the model (``Term.enters``) and the hook that makes it so
 ENTERS: dict[str, str] = {
@@ -195,6 +196,20 @@ def least_squares(x: torch.Tensor, y: torch.Tensor, w: torch.Tensor) -> float:
     """The weighted least-squares slope of ``y`` on ``x`` through zero (0 when ``x`` is 0)."""
     den = float((w * x * x).sum())
     return float((w * x * y).sum()) / den if den > 0 else 0.0
+
+
+def shrink_to_zero(mean: torch.Tensor, noise: torch.Tensor, has=None):
+    """Empirical Bayes for random effects about zero: ``mean`` (e.g. a column's or a frame's
+    weighted mean residual) has variance ``sigma^2 + noise``; ``sigma^2`` is estimated by
+    moments over the entries ``has`` (default all) and every entry gets its best linear
+    unbiased prediction ``mean sigma^2 / (sigma^2 + noise)`` (entries outside ``has``: 0).
+    Returns ``(predictions, sigma, shrinkage factors)``; the factors sum to the effective number
+    of parameters."""
+    if has is None:
+        has = torch.ones_like(mean, dtype=torch.bool)
+    s2 = max(float(((mean**2 - noise)[has]).mean()), 0.0) if bool(has.any()) else 0.0
+    shrink = torch.where(has, s2 / (s2 + noise), 0.0)
+    return mean * shrink, math.sqrt(s2), shrink
 
 
 def depth_residuals(obs, ctx, pred) -> tuple[torch.Tensor, torch.Tensor]:

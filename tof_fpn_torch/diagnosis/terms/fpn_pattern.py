@@ -19,7 +19,7 @@ import torch
 
 from ... import constants as K
 from ...sim import FPNPattern
-from .base import Term, r4
+from .base import Term, r4, shrink_to_zero
 
 __all__ = ["FPNPatternTerm", "update_profiles"]
 
@@ -50,14 +50,11 @@ def update_profiles(model, obs, ctx, pred, sel: str = "all"):
                 has = big_w > 0
                 mean = torch.where(has, res.sum(axis) / big_w.clamp_min(1e-300), 0.0)
                 noise = torch.where(has, 1.0 / big_w.clamp_min(1e-300), 0.0)
-                s2 = max(float(((mean**2 - noise)[has]).mean()), 0.0) if bool(has.any()) else 0.0
-                shrink = torch.where(has, s2 / (s2 + noise), 0.0)
-                prof = mean * shrink
+                prof, rms[name], shrink = shrink_to_zero(mean, noise, has)
                 if axis == 0:
                     col = prof
                 else:
                     row = prof
-                rms[name] = math.sqrt(s2)
                 if _ == 1:
                     dof += float(shrink.sum()) + 1.0
     out = model.copy()

@@ -19,7 +19,7 @@ from ...sim import Saturation
 from ..params import ParamSpec
 from .base import Term, r4
 
-__all__ = ["START_QUANTILES", "SaturationTerm", "clipped_share", "peak_samples"]
+__all__ = ["START_QUANTILES", "SaturationTerm", "clipped_share", "peak_samples", "start_levels"]
 
 #: Quantiles of the largest raw sample (predicted, and implied by the observed amplitude) at
 #: which the level starts: a dense grid from the median to the 99.9th percentile, as a clip of
@@ -35,6 +35,23 @@ def peak_samples(model, p, depth: torch.Tensor, amp: torch.Tensor):
     th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
     cmax = torch.cos(phi.unsqueeze(-1) + th).amax(-1)
     return p.offset + amp * cmax
+
+
+def start_levels(model, obs, ctx, pred, quantiles=START_QUANTILES) -> list[float]:
+    """Starting levels (e-) of a clip: the clip must touch some samples at the start, or the
+    level's gradient is zero. The ``quantiles`` of the largest predicted raw sample and of the
+    largest sample that the observed amplitude and depth imply (a clipped pixel reads a smaller
+    amplitude)."""
+    g = model.values["camera.conversion_gain"]
+    out = []
+    for peaks in (
+        peak_samples(model, pred, pred.mu_d, pred.a0),
+        peak_samples(model, pred, obs.m_d, obs.m_a),
+    ):
+        pk = (peaks * g)[ctx.mask_a & torch.isfinite(peaks)]
+        if pk.numel():
+            out += [float(torch.quantile(pk, q)) for q in quantiles]
+    return out
 
 
 class SaturationTerm(Term):
@@ -65,19 +82,7 @@ class SaturationTerm(Term):
         return r_cam**2 / 12.0
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
-        # the clip must touch some samples at the start, or the level's gradient is zero: levels
-        # at high quantiles of the largest predicted raw sample and of the largest sample that
-        # the observed amplitude and depth imply (a clipped pixel reads a smaller amplitude)
-        g = model.values["camera.conversion_gain"]
-        out = []
-        for peaks in (
-            peak_samples(model, pred, pred.mu_d, pred.a0),
-            peak_samples(model, pred, obs.m_d, obs.m_a),
-        ):
-            pk = (peaks * g)[ctx.mask_a & torch.isfinite(peaks)]
-            if pk.numel():
-                out += [{"saturation.level": float(torch.quantile(pk, q))} for q in START_QUANTILES]
-        return out
+        return [{"saturation.level": lv} for lv in start_levels(model, obs, ctx, pred)]
 
     def clip_level(self, v: dict):
         return v["saturation.level"] / v["camera.conversion_gain"]

@@ -18,7 +18,7 @@ import torch
 from ...sim import Saturation
 from ..params import ParamSpec
 from .base import Term, r4
-from .saturation import START_QUANTILES, clipped_share, peak_samples
+from .saturation import START_QUANTILES, clipped_share, start_levels
 
 __all__ = ["KNEE_SHARES", "SaturationKneeTerm"]
 
@@ -56,24 +56,12 @@ class SaturationKneeTerm(Term):
         return state
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
-        # as the clip's: levels at high quantiles of the largest raw sample (predicted, and
-        # implied by the observed amplitude), each with a narrow and a wide knee
-        g = model.values["camera.conversion_gain"]
-        out = []
-        for peaks in (
-            peak_samples(model, pred, pred.mu_d, pred.a0),
-            peak_samples(model, pred, obs.m_d, obs.m_a),
-        ):
-            pk = (peaks * g)[ctx.mask_a & torch.isfinite(peaks)]
-            if not pk.numel():
-                continue
-            for q in START_QUANTILES[::3]:
-                lv = float(torch.quantile(pk, q))
-                out += [
-                    {"saturation_knee.level": lv, "saturation_knee.knee": share * lv}
-                    for share in KNEE_SHARES
-                ]
-        return out
+        # the clip's starting levels (every third), each with a narrow and a wide knee
+        return [
+            {"saturation_knee.level": lv, "saturation_knee.knee": share * lv}
+            for lv in start_levels(model, obs, ctx, pred, START_QUANTILES[::3])
+            for share in KNEE_SHARES
+        ]
 
     def describe(self, model, obs, pred) -> dict:
         v = model.values

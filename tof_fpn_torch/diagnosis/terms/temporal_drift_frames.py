@@ -15,32 +15,23 @@ or place; the report names it ``temporal_drift``.
 
 from __future__ import annotations
 
-import math
-
 import torch
 
 from ...sim import TemporalDrift
-from .base import Term, r4
+from .base import Term, r4, shrink_to_zero
 
 __all__ = ["TemporalDriftFramesTerm", "frame_profiles"]
 
 
-def _shrunk(e: torch.Tensor, noise: torch.Tensor) -> tuple[torch.Tensor, float, float]:
-    """Empirical Bayes: ``(e shrunk, its rms sigma, the effective parameters)``."""
-    s2 = max(float((e**2 - noise).mean()), 0.0)
-    shrink = s2 / (s2 + noise)
-    return e * shrink, math.sqrt(s2), float(shrink.sum())
-
-
-def frame_profiles(model, obs, ctx, pred, sel: str = "all", skip=None):
+def frame_profiles(model, obs, ctx, pred, sel: str = "all", skip: str = ""):
     """``model`` with the closed-form per-frame delays and light levels (``model.profiles``
     ``"frame_delays"``, ``"frame_light"``) from the residuals of the ``sel`` pixels to ``pred``
-    and the other per-frame terms of the model (not ``skip``)."""
+    and the other per-frame terms of the model (not the one named ``skip``)."""
     v = model.values
     shift = torch.zeros(obs.frames, 1, dtype=torch.float64)
     factor = torch.ones(obs.frames, 1, dtype=torch.float64)
     for t in model.terms():
-        if t is skip or t.name == skip:
+        if t.name == skip:
             continue
         x = t.frame_means(v, obs, model)
         if x is not None:
@@ -55,7 +46,7 @@ def frame_profiles(model, obs, ctx, pred, sel: str = "all", skip=None):
         r = torch.maximum(torch.minimum(r, lim), -lim)
         wd = md / var
         big = wd.sum((1, 2)).clamp_min(1e-300)
-        delays, rms_d, dof_d = _shrunk((r * wd).sum((1, 2)) / big, 1.0 / big)
+        delays, rms_d, dof_d = shrink_to_zero((r * wd).sum((1, 2)) / big, 1.0 / big)
         ma = (obs.valid & (ctx.mask_a & ctx.select(sel)).unsqueeze(0)).to(torch.float64)
         mu_a = pred.mu_a.detach().unsqueeze(0) * factor.view(-1, 1, 1)
         ra = torch.nan_to_num(obs.amplitude / mu_a - 1.0)
@@ -64,10 +55,10 @@ def frame_profiles(model, obs, ctx, pred, sel: str = "all", skip=None):
         ra = torch.maximum(torch.minimum(ra, lim), -lim)
         wa = ma / va
         big = wa.sum((1, 2)).clamp_min(1e-300)
-        light, rms_a, dof_a = _shrunk((ra * wa).sum((1, 2)) / big, 1.0 / big)
+        light, rms_a, dof_a = shrink_to_zero((ra * wa).sum((1, 2)) / big, 1.0 / big)
     out = model.copy()
     out.profiles = dict(out.profiles, frame_delays=delays, frame_light=light)
-    out.values["temporal_drift_frames.dof"] = dof_d + dof_a
+    out.values["temporal_drift_frames.dof"] = float(dof_d.sum() + dof_a.sum())
     out.values["temporal_drift_frames.rms_delay"] = rms_d
     out.values["temporal_drift_frames.rms_light"] = rms_a
     return out
