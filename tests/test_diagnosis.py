@@ -328,3 +328,23 @@ def test_readme_diagnose_command_works_as_written(tmp_path, monkeypatch, capsys)
     out = Path(words[words.index("--out") + 1])
     assert json.loads((out / "report.json").read_text())["effects"] == []
     assert (out / "report.md").is_file() and (out / "model.json").is_file()
+
+
+def test_cli_takes_a_cameras_own_file(tmp_path, capsys):
+    """An ADI depth / IR pair as the camera writes it (uint16 mm and counts, the size in the
+    name; a 64 x 64 crop of the wall capture) is diagnosed as it is, its IR file found beside
+    it and the scene estimated from it (a plain array .npz is refused: the bad-input test)."""
+    h, w = 64, 64
+    for kind, src in zip(("depth", "ir"), ADI_WALL, strict=True):
+        full = np.fromfile(REAL / src, dtype="<u2").reshape(512, 512)
+        full[200 : 200 + h, 200 : 200 + w].copy().tofile(tmp_path / f"cap_{kind}_u16le_{h}x{w}.bin")
+    out = tmp_path / "out"
+    depth_file = tmp_path / f"cap_depth_u16le_{h}x{w}.bin"
+    status, cap = _cli(capsys, depth_file, "--out", out, "--bootstrap", 0, "--no-figures")
+    assert status == 0, cap.err
+    assert cap.out.startswith("verdict:")
+    report = json.loads((out / "report.json").read_text())
+    got = report["recording"]
+    assert (got["height"], got["width"], got["frames"]) == (h, w, 1)
+    assert got["scene_estimated"]
+    assert got["depth_pixels"] > 0.5 * h * w

@@ -21,12 +21,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "diagnose",
         help="locate, name and model what a simulation misses in a recording; writes report.md",
-        description="Fit the simulator to RECORDING (a recording .npz), locate where the residual "
+        description="Fit the simulator to RECORDING (a recording .npz or a camera's own file: "
+        ".mkv, ROS bag, ADI depth / IR .bin), locate where the residual "
         "departs from its null, rank the catalogue of missing physics by held-out likelihood and "
         "AIC, add the winners, refit and show the fit improve. Without --scene the scene is "
         "estimated from the recording.",
     )
-    p.add_argument("recording", metavar="RECORDING", help="recording .npz (tof_fpn_torch.io)")
+    p.add_argument(
+        "recording",
+        metavar="RECORDING",
+        help="recording .npz, or a camera's own file (.mkv, ROS bag, ADI .bin)",
+    )
     p.add_argument("--scene", metavar="SCENE", default=None, help="scene .npz (ground truth)")
     p.add_argument("--out", metavar="DIR", default=DEFAULT_OUT, help="output directory")
     p.add_argument(
@@ -55,13 +60,13 @@ def _existing(option: str, path: str | None) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose
     from ..diagnosis.persist import load_model
-    from ..io import read_recording, read_scene
+    from ..io import read_any_recording, read_scene
 
     _existing("RECORDING", args.recording)
     _existing("--scene", args.scene)
     _existing("--baseline", args.baseline)
     check_output_dir("--out", args.out)
-    rec = read_recording(args.recording)
+    rec = read_any_recording(args.recording, frame_files=False)
     scene = read_scene(args.scene) if args.scene is not None else None
     base = load_model(args.baseline) if args.baseline is not None else None
     kw = {} if args.bootstrap is None else {"replicates": args.bootstrap}

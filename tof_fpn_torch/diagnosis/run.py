@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..io import Recording, read_recording, read_scene
+from ..io import Recording, read_any_recording, read_scene
 from .catalogue import CATALOGUE, REVEALED_WITHOUT_SCENE, implemented
 from .data import Observations, observe
 from .fit import FIT_TOL, evaluate, fit, init_model, robust_start
@@ -89,11 +89,12 @@ def _stats(model, obs, ctx, replicates: int, seed: int) -> dict[str, Stat]:
 def _load(recording, scene):
     if not isinstance(recording, (Recording, str, os.PathLike)):
         raise ValueError(
-            "recording must be a tof_fpn_torch.io.Recording or the path of a recording .npz, "
+            "recording must be a tof_fpn_torch.io.Recording or the path of a recording .npz or "
+            "camera file, "
             f"got {type(recording).__name__}"
         )
     if not isinstance(recording, Recording):
-        recording = read_recording(recording)
+        recording = read_any_recording(recording, frame_files=False)
     if scene is not None and not hasattr(scene, "depth"):
         scene = read_scene(scene)
     return recording, scene
@@ -112,7 +113,8 @@ def diagnose(
     """Diagnose ``recording`` against the simulator.
 
     Args:
-        recording: a :class:`~tof_fpn_torch.io.Recording` or the path of a recording ``.npz``.
+        recording: a :class:`~tof_fpn_torch.io.Recording` or the path of a recording ``.npz``
+            or of a camera's own file (``.mkv``, ROS bag, ADI ``.bin``; ``io.read_any_recording``).
         scene: the ground truth (:class:`~tof_fpn_torch.io.SceneData`, a one-scene
             :class:`~tof_fpn_torch.sim.Scene` or a scene ``.npz`` path); ``None``: estimated from
             the recording (temporal median, edge-aware smoothing; see docs/diagnosis.md for what

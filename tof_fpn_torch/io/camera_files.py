@@ -265,14 +265,23 @@ def read_any_recording(
     depth_topic: str | None = None,
     amplitude_topic: str | None = None,
     allow_empty: bool = False,
+    frame_files: bool = True,
 ) -> Recording:
     """Any frame file the folder tools take (``ACCEPTED``) as a :class:`Recording`.
 
     Containers through their readers; a recording ``.npz`` as it is; every other file through
     :func:`~.stored.read_frame_sets` (one set: an HDF5 file with several groups is refused), with
     ``meta["camera"]`` the camera its name tells (``adtf3175`` for ADI names) and the other
-    settings unknown (None)."""
+    settings unknown (None). ``frame_files=False``: only a camera's own files (containers,
+    vendor-named raw files) are read so; anything else must be a recording ``.npz``
+    (:func:`~.recording.read_recording`, with its errors). The IR file of an ADI depth file is
+    found beside it when ``amplitude_path`` is not given."""
     p = Path(depth_path)
+    if not frame_files and not is_camera_recording(p) and vendor_name(p.name) is None:
+        return read_recording(p, allow_empty=allow_empty)
+    partner = vendor_partner(p.name)
+    if amplitude_path is None and partner is not None and (p.parent / partner).is_file():
+        amplitude_path = p.parent / partner  # the other file of an ADI pair, beside it
     if is_camera_recording(p):
         return read_camera_file(
             p,
