@@ -295,3 +295,28 @@ def test_two_forms_of_one_effect_make_one_stage(setup):
         one = joined[0].apply(SimState(m.camera, scene, s.clone(), None)).samples
         two = b.apply(a.apply(SimState(m.camera, scene, s.clone(), None))).samples
         assert torch.equal(one, two), member.name
+
+
+def test_hessian_hint_fills_the_known_block():
+    """The whitening's Hessian with a known block (the core parameters' from the current model)
+    equals the full finite-difference Hessian: the known rows come from the block, their
+    entries against the other keys from the computed rows (by symmetry)."""
+    from tof_fpn_torch.diagnosis.fit import _hessian
+
+    g = torch.Generator().manual_seed(2)
+    m = torch.randn(5, 5, dtype=torch.float64, generator=g)
+    a = m @ m.T + 5 * torch.eye(5, dtype=torch.float64)
+
+    def objective(u):
+        return 0.5 * u @ a @ u
+
+    u0 = torch.randn(5, dtype=torch.float64, generator=g)
+    _, full = _hessian(objective, u0)
+    idx = [0, 2, 3]
+    _, hinted = _hessian(objective, u0, (idx, a[idx][:, idx]))
+    assert torch.allclose(full, a, atol=1e-6)
+    assert torch.allclose(hinted, a, atol=1e-6)
+    wrong = (idx, torch.zeros(3, 3, dtype=torch.float64))  # the block is taken as given
+    _, h0 = _hessian(objective, u0, wrong)
+    assert torch.allclose(h0[[1, 4]][:, [1, 4]], a[[1, 4]][:, [1, 4]], atol=1e-6)
+    assert float(h0[0, 0]) == 0.0
