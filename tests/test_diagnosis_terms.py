@@ -290,7 +290,8 @@ def test_two_forms_of_one_effect_make_one_stage(setup):
         assert len(joined) == 1 and joined[0].name == phys.sim_name, member.name
         a = phys.simulator_term(m.values, m)
         b = member.simulator_term(m.values, m)
-        s = torch.rand(1, 4, 3, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+        h, w = scene.depth.shape[-2:]  # the scene's size: a relay needs its geometry
+        s = torch.rand(1, 4, h, w, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
         s = 500.0 + 300.0 * s
         one = joined[0].apply(SimState(m.camera, scene, s.clone(), None)).samples
         two = b.apply(a.apply(SimState(m.camera, scene, s.clone(), None))).samples

@@ -116,3 +116,81 @@ def test_scene_relay_uses_at_most_the_maximum_number_of_sources():
     ((wgt, *_),) = relay._CACHE.values()
     assert 0.5 * K.MULTIPATH_MAX_SOURCES < wgt.shape[0] <= K.MULTIPATH_MAX_SOURCES
     assert wgt.shape[1] == 40 * 60
+
+
+def _two_planes(h, w, fov, split=None):
+    """Depth (H, W) of two planes seen through the pinhole (left: a wall facing the camera at a
+    slant, right: a farther plane), and their unit normals (H, W, 3) facing the camera."""
+    f_px = (w / 2) / math.tan(math.radians(fov) / 2)
+    yy = (torch.arange(h, dtype=torch.float64).view(h, 1) - (h - 1) / 2).expand(h, w) / f_px
+    xx = (torch.arange(w, dtype=torch.float64).view(1, w) - (w - 1) / 2).expand(h, w) / f_px
+    u = torch.stack([xx, yy, torch.ones_like(xx)], -1)
+    u = u / u.norm(dim=-1, keepdim=True)
+    na = torch.tensor([0.3, -0.2, -1.0], dtype=torch.float64)
+    nb = torch.tensor([-0.5, 0.1, -1.0], dtype=torch.float64)
+    na, nb = na / na.norm(), nb / nb.norm()
+    left = (torch.arange(w) < (w // 2 if split is None else split)).view(1, w, 1).expand(h, w, 1)
+    n = torch.where(left, na, nb)
+    c = torch.where(left[..., 0], -2.0 * float(na[2]), -3.5 * float(nb[2]))  # n . P = c
+    depth = c / (u * n).sum(-1)  # the ray hits n . (d u) = c
+    return depth, -n  # normals towards the camera (n . P > 0: turn them)
+
+
+def test_cosine_relay_matches_the_pairwise_sum_with_normals():
+    """With ``cosines`` the relay weighs every pair by both obliquities, the normals estimated
+    from the depth map: equal to the pair-by-pair sum with the planes' true normals, and a single
+    plane does not light itself."""
+    from tof_fpn_torch.sim.relay import normals, relay_matrix
+
+    h, w, n, fov, near, step, ppm = 6, 8, 4, 60.0, 0.3, 2, 0.84
+    depth, nrm = _two_planes(h, w, fov)
+    f_px = (w / 2) / math.tan(math.radians(fov) / 2)
+    yy = (torch.arange(h, dtype=torch.float64).view(h, 1) - (h - 1) / 2).expand(h, w) / f_px
+    xx = (torch.arange(w, dtype=torch.float64).view(1, w) - (w - 1) / 2).expand(h, w) / f_px
+    ray = torch.stack([xx, yy, torch.ones_like(xx)], -1)
+    pts = depth.unsqueeze(-1) * ray / ray.norm(dim=-1, keepdim=True)
+    assert torch.allclose(normals(pts, depth), nrm, atol=1e-9)
+    gen = torch.Generator().manual_seed(4)
+    rho = 0.2 + 0.6 * torch.rand(h, w, generator=gen, dtype=torch.float64)
+    samples = 100 + 50 * torch.rand(1, n, h, w, generator=gen, dtype=torch.float64)
+    got = scene_relay(samples, depth, rho, fov, near, step, ppm, cosines=True)
+    # the pairwise sum with the true obliquities: the plain relay of each pair times its cosines
+    wgt, *_, src = relay_matrix(depth, fov, near, step, ppm)
+    p, q = pts.reshape(-1, 3), pts.reshape(-1, 3)[src]
+    d = q.unsqueeze(0) - p.unsqueeze(1)
+    r = d.norm(dim=-1).clamp_min(1e-12)
+    cos_p = ((d / r.unsqueeze(-1)) * nrm.reshape(-1, 1, 3)).sum(-1).clamp_min(0)
+    cos_q = (-(d / r.unsqueeze(-1)) * nrm.reshape(-1, 3)[src].unsqueeze(0)).sum(-1).clamp_min(0)
+    want = torch.zeros_like(samples)
+    for i, qi in enumerate(src.tolist()):
+        one = torch.zeros(1, 1, h, w, dtype=torch.float64)
+        one.view(-1)[qi] = 1.0
+        part = scene_relay(samples * one, depth, rho, fov, near, step, ppm)
+        want = want + part * (cos_p[:, i] * cos_q[:, i]).view(1, 1, h, w)
+    assert torch.allclose(got, want, rtol=1e-4, atol=1e-4)
+    assert float(got.abs().max()) > 0
+    flat, _ = _two_planes(h, w, fov, split=w)  # one plane: every pair has a zero cosine
+    alone = scene_relay(samples, flat, rho, fov, near, 1, ppm, cosines=True)
+    plain = scene_relay(samples, flat, rho, fov, near, 1, ppm)
+    assert float(alone.abs().max()) < 1e-6 * float(plain.abs().max())
+
+
+def test_source_map_scales_the_light_each_point_relays():
+    """``Multipath(source_map=m)`` relays ``m`` times each point's light: zero relays nothing,
+    a constant c is c times the plain relay; a map of another size or with negative values is
+    refused."""
+    cam = Camera()
+    scene = synthetic_scene(24, 32, seed=1, depth_range=(0.6, 4.0))
+    act = Photons().mean_samples(cam, scene).double()
+
+    def run(term):
+        return term.apply(SimState(cam, scene, act.clone(), None)).samples - act
+
+    plain = run(Multipath(scene_relay=0.01))
+    assert torch.allclose(run(Multipath(scene_relay=0.01, source_map=torch.zeros(24, 32))), 0 * act)
+    twice = run(Multipath(scene_relay=0.01, source_map=torch.full((24, 32), 2.0)))
+    assert torch.allclose(twice, 2 * plain, rtol=1e-6, atol=1e-6)
+    with pytest.raises(ValueError, match="source_map"):
+        Multipath(scene_relay=0.01, source_map=torch.full((24, 32), -1.0))
+    with pytest.raises(ValueError, match="frames are"):
+        run(Multipath(scene_relay=0.01, source_map=torch.ones(10, 10)))

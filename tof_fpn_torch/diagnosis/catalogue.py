@@ -63,6 +63,7 @@ from .terms.fpn_pixel_offsets import FPNPixelOffsetsTerm
 from .terms.impulsive_pixels import ImpulsivePixelsTerm
 from .terms.mixed_pixels import MixedPixelsTerm
 from .terms.multipath import MultipathTerm
+from .terms.multipath_sources import MultipathSourcesTerm
 from .terms.noise_floor import NoiseFloorTerm
 from .terms.phase_wrapping import PhaseWrappingTerm
 from .terms.pixel_gain import PixelGainTerm
@@ -101,6 +102,7 @@ TERMS: tuple[Term, ...] = (
     CyclicErrorSeriesTerm(),
     TemporalDriftFramesTerm(),
     SaturationKneeTerm(),
+    MultipathSourcesTerm(),
 )
 
 #: name -> term

@@ -142,6 +142,8 @@ def rank(
     # the core block of the Hessian, once: every candidate starts near the current model, and
     # its whitening computes only the term's own rows
     hint = hessian(base_train, obs, ctx, "train", free=[s.key for s in CORE_SPECS])
+    with torch.no_grad():
+        p_cur = predict(base_train, obs, scene=ctx.scene)
 
     def one(name: str) -> dict | None:
         term = CATALOGUE[name]
@@ -155,7 +157,8 @@ def rank(
             fit(s, obs, ctx, "train", free=free, iters=CANDIDATE_ITERS, hint=hint) for s in starts
         ]
         cand = min(fits, key=lambda t: t[1])[0]
-        return _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free)
+        share = term.signature_share(obs, ctx, p_cur)
+        return _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free, share)
 
     names = [
         n for n in implemented() if n not in base_train.effects and (only is None or n in only)
@@ -173,7 +176,10 @@ def rank(
             if r["score"] is None or r["score"] < (1 - CONTENDER_SHARE) * top:
                 return r
             cand, _ = fit(r["model"], obs, ctx, "train", free=r["free"], iters=FIT_ITERS, hint=hint)
-            return _score(r["name"], cand, base_train, nll_train, nll_test, obs, ctx, r["free"])
+            share = r.get("signature_share")
+            return _score(
+                r["name"], cand, base_train, nll_train, nll_test, obs, ctx, r["free"], share
+            )
 
         out = map_threads(on, out)
     out.sort(key=_key)
@@ -186,8 +192,9 @@ def _key(r: dict) -> float:
     return -(r["score"] if r["score"] is not None else -math.inf)
 
 
-def _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free) -> dict:
-    """Held-out gain and AIC change of the fitted candidate ``cand`` (term ``name``)."""
+def _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free, share=None) -> dict:
+    """Held-out gain and AIC change of the fitted candidate ``cand`` (term ``name``); both gains
+    scaled by ``share``, the share of the misfit with the term's signature (None: 1)."""
     c_train = evaluate(cand, obs, ctx, "train")
     c_test = evaluate(cand, obs, ctx, "test")
     k = cand.n_parameters() - base_train.n_parameters()
@@ -197,6 +204,8 @@ def _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free) -> dict:
     off.effects.remove(name)
     gain_train = min(nll_train, evaluate(off, obs, ctx, "train")) - c_train
     gain = min(nll_test, evaluate(off, obs, ctx, "test")) - c_test
+    if share is not None:
+        gain_train, gain = gain_train * share, gain * share
     daic = 2 * k - 2 * gain_train
     ok = math.isfinite(gain) and gain >= MIN_GAIN and daic <= -MIN_DAIC
     return {
@@ -205,6 +214,7 @@ def _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free) -> dict:
         "delta_aic": round(daic, 3) if math.isfinite(daic) else None,
         "added_parameters": round(k, 2),
         "significant": ok,
+        "signature_share": None if share is None else round(share, 4),
         "model": cand,
         "free": free,
     }

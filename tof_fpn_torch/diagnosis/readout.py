@@ -28,7 +28,14 @@ import torch
 
 from .. import constants as K
 
-__all__ = ["READOUT_KEYS", "OUTLIER_SIGMA", "apply_readout", "readout_maps", "update_readout"]
+__all__ = [
+    "OUTLIER_SIGMA",
+    "READOUT_KEYS",
+    "apply_readout",
+    "readout_maps",
+    "rotated_residuals",
+    "update_readout",
+]
 
 #: Pixels whose residual in either channel is beyond this many sd (outliers, wraps, a clip the
 #: model does not know yet) are left out of the column estimates.
@@ -117,7 +124,7 @@ def _loadings(phi, bn, an, n: int):
     return rad, tan
 
 
-def _residuals(model, obs, pred, k: float):
+def rotated_residuals(model, obs, pred, k: float):
     """The rotated residuals (radial DN, tangential DN), their variances and the pixels that are
     not outliers."""
     r = obs.m_d - pred.mu_d.detach()
@@ -144,7 +151,7 @@ def update_readout(model, obs, ctx, pred, sel: str = "all"):
         aref = max(float(a0[m].median()) if bool(m.any()) else 1.0, 1e-12)
         n_ph = model.camera.n_phases
         rad, tan = _loadings(k * pred.mu_d.detach(), b / max(bref, 1e-12), a0 / aref, n_ph)
-        ra, ta, va, vt, inlier = _residuals(model, obs, pred, k)
+        ra, ta, va, vt, inlier = rotated_residuals(model, obs, pred, k)
         m = m & inlier
         old = torch.zeros(_NC, w, dtype=torch.float64)
         if READOUT_KEYS[0] in model.profiles:

@@ -29,10 +29,18 @@ __all__ = [
     "Saturation",
     "Vignetting",
     "edge_partners",
+    "source_step",
 ]
 
 #: a pixel is on a depth edge when a 4-neighbour's scene depth differs by more than this (m)
 EDGE_STEP_M: float = 0.1
+
+
+def source_step(h: int, w: int, relay_step: int = K.MULTIPATH_RELAY_STEP) -> int:
+    """Pixels between the relay's source patches in (H, W) frames: at least ``relay_step`` and
+    at most ``MULTIPATH_MAX_SOURCES`` sources (the relay is a (sources x pixels) matrix: memory
+    and time grow with both)."""
+    return max(int(relay_step), math.ceil(math.sqrt(h * w / K.MULTIPATH_MAX_SOURCES)))
 
 
 def _radius2(h: int, w: int, cx, cy, like: torch.Tensor) -> torch.Tensor:
@@ -288,6 +296,11 @@ class Multipath(Term):
     other; ``relay_step``: px between the source patches, raised so that at most
     ``MULTIPATH_MAX_SOURCES`` are used). The uniform part then stands for light relayed from
     outside the field of view.
+
+    ``source_map`` (H, W), optional, >= 0: the share of its light each scene point relays, in
+    place of the same efficiency everywhere (a free relay per surface: a glossy floor, one bright
+    wall; multiplies ``scene_relay``). ``cosines``: the relay's form factor with both
+    obliquities from the surface normals (:mod:`tof_fpn_torch.sim.relay`).
     """
 
     strength: float = 0.0
@@ -296,6 +309,8 @@ class Multipath(Term):
     field_of_view: float = K.MULTIPATH_FIELD_OF_VIEW_DEG
     near_field: float = K.MULTIPATH_NEAR_FIELD_M
     relay_step: int = K.MULTIPATH_RELAY_STEP
+    source_map: torch.Tensor | None = None
+    cosines: bool = False
     name: str = field(default="multipath", init=False)
 
     def __post_init__(self) -> None:
@@ -313,6 +328,15 @@ class Multipath(Term):
         _check_range(self.near_field, "Multipath.near_field", 0.0, strict=True, unit=" m")
         if int(self.relay_step) != self.relay_step or self.relay_step < 1:
             raise ValueError(f"Multipath.relay_step must be an integer >= 1, got {self.relay_step}")
+        m = self.source_map
+        if m is not None:
+            if not isinstance(m, torch.Tensor) or m.dim() != 2:
+                raise ValueError(
+                    "Multipath.source_map must be an (H, W) tensor, got "
+                    f"{tuple(m.shape) if isinstance(m, torch.Tensor) else type(m).__name__}"
+                )
+            if not bool(torch.isfinite(m).all()) or bool((m < 0).any()):
+                raise ValueError("Multipath.source_map must be finite and >= 0")
         return self
 
     def apply(self, state: SimState) -> SimState:
@@ -335,9 +359,14 @@ class Multipath(Term):
         sc = state.scene
         per = samples.shape[0] // sc.depth.shape[0]
         h, w = samples.shape[-2:]
-        # at least relay_step px between sources, and at most MULTIPATH_MAX_SOURCES of them
-        # (the relay is a (sources x pixels) matrix: memory and time grow with both)
-        step = max(int(self.relay_step), math.ceil(math.sqrt(h * w / K.MULTIPATH_MAX_SOURCES)))
+        if self.source_map is not None:
+            if tuple(self.source_map.shape) != (h, w):
+                raise ValueError(
+                    f"Multipath.source_map is {tuple(self.source_map.shape)}, the frames are "
+                    f"{(h, w)}"
+                )
+            samples = samples * self.source_map.to(samples.device, samples.dtype)
+        step = source_step(h, w, self.relay_step)
         parts = [
             scene_relay(
                 samples[i * per : (i + 1) * per],
@@ -347,6 +376,7 @@ class Multipath(Term):
                 float(self.near_field),
                 step,
                 _phase_per_metre(state.camera),
+                bool(self.cosines),
             )
             for i in range(sc.depth.shape[0])
         ]

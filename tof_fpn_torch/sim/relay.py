@@ -17,6 +17,12 @@ path ``r_pq + d_p - d_q`` over the direct path ``2 d_q`` of the light ``q`` meas
 hardly light each other (their cosines vanish), which a model without surface normals can only
 state as a near-field length. The cosines elsewhere are left out; the term's ``scene_relay``
 (a relay efficiency, 1 = every pair facing each other) scales the whole sum.
+
+With ``cosines=True`` the form factor is the Lambertian one with both obliquities,
+``A_q cos(theta_q) cos(theta_p) / (pi (r^2 + L^2))``, the surface normals estimated from the
+back-projected depth map (finite differences on the side of the smaller depth step, turned
+towards the camera) and a pair that does not face each other (a cosine <= 0) relaying nothing:
+points of one plane do not light each other, a floor lights the walls.
 """
 
 from __future__ import annotations
@@ -27,7 +33,7 @@ from collections import OrderedDict
 
 import torch
 
-__all__ = ["CACHE_SIZE", "relay_matrix", "scene_relay"]
+__all__ = ["CACHE_SIZE", "normals", "relay_matrix", "scene_relay"]
 
 #: Relay matrices (one per frame size, geometry and step) kept in memory.
 CACHE_SIZE: int = 2
@@ -37,21 +43,49 @@ _LOCK = threading.Lock()  # the diagnosis fits candidates in threads
 
 
 def relay_matrix(
-    depth: torch.Tensor, fov_deg: float, near_field: float, step: int, phase_per_metre: float
+    depth: torch.Tensor,
+    fov_deg: float,
+    near_field: float,
+    step: int,
+    phase_per_metre: float,
+    cosines: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(W, W cos psi, W sin psi, source index (Q,))`` for one (H, W) depth map (m), each (Q, P):
-    the form factors ``W = A_q / (pi (r^2 + L^2))`` and ``psi`` the phase of the extra path.
-    Cached for the last few (scene, settings); thread-safe."""
+    the form factors ``W = A_q / (pi (r^2 + L^2))`` (times both obliquities with ``cosines``)
+    and ``psi`` the phase of the extra path. Cached for the last few (scene, settings);
+    thread-safe."""
     with _LOCK:
-        return _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre)
+        return _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines)
 
 
-def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre):
+def normals(points: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+    """Unit surface normals (H, W, 3) of back-projected ``points`` (H, W, 3), facing the camera:
+    along each axis the one-sided difference with the smaller depth step (not across an edge)."""
+
+    def tangent(axis: int) -> torch.Tensor:
+        fwd = torch.roll(points, -1, axis) - points
+        bwd = points - torch.roll(points, 1, axis)
+        dfwd = (torch.roll(depth, -1, axis) - depth).abs()
+        dbwd = (depth - torch.roll(depth, 1, axis)).abs()
+        n = depth.shape[axis]
+        last = torch.arange(n) == n - 1
+        first = torch.arange(n) == 0
+        shape = (-1, 1) if axis == 0 else (1, -1)
+        dfwd = torch.where(last.view(shape), torch.inf, dfwd)
+        dbwd = torch.where(first.view(shape), torch.inf, dbwd)
+        return torch.where((dfwd <= dbwd).unsqueeze(-1), fwd, bwd)
+
+    n = torch.linalg.cross(tangent(1), tangent(0))
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return torch.where(((n * points).sum(-1) > 0).unsqueeze(-1), -n, n)
+
+
+def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines=False):
     d64 = depth.detach().to(torch.float64)
     ramp = torch.arange(d64.numel(), dtype=torch.float64).view(d64.shape)
     # the scene by content (a freed tensor's address may come back with other values)
     content = (float(d64.sum()), float((d64 * ramp).sum()), float((d64 * d64).sum()))
-    key = (tuple(depth.shape), content, fov_deg, near_field, step, phase_per_metre)
+    key = (tuple(depth.shape), content, fov_deg, near_field, step, phase_per_metre, cosines)
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
@@ -61,7 +95,8 @@ def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre):
     yy = (torch.arange(h, dtype=torch.float64).view(h, 1) - (h - 1) / 2.0).expand(h, w)
     xx = (torch.arange(w, dtype=torch.float64).view(1, w) - (w - 1) / 2.0).expand(h, w)
     ray = torch.stack([xx / f_px, yy / f_px, torch.ones_like(xx)], -1)
-    pts = (d.unsqueeze(-1) * ray / ray.norm(dim=-1, keepdim=True)).reshape(-1, 3)
+    pts3 = d.unsqueeze(-1) * ray / ray.norm(dim=-1, keepdim=True)
+    pts = pts3.reshape(-1, 3)
     sy = torch.arange(step // 2, h, step)
     sx = torch.arange(step // 2, w, step)
     src = (sy.view(-1, 1) * w + sx.view(1, -1)).reshape(-1)
@@ -69,6 +104,12 @@ def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre):
     area = dq * dq * (step / f_px) ** 2
     r = torch.cdist(pts, pts[src])
     wgt = area.view(1, -1) / (math.pi * (r * r + near_field**2))
+    if cosines:  # n_p . (Q - P) and n_q . (P - Q), as (P, Q) products (no (P, Q, 3) tensor)
+        nrm = normals(pts3, d).reshape(-1, 3)
+        nq = nrm[src]
+        cos_p = (nrm @ pts[src].T - (nrm * pts).sum(1, keepdim=True)).clamp_min(0)
+        cos_q = (pts @ nq.T - (nq * pts[src]).sum(1).view(1, -1)).clamp_min(0)
+        wgt = wgt * cos_p * cos_q / (r * r).clamp_min(1e-18)
     psi = 0.5 * phase_per_metre * (r + dp.view(-1, 1) - dq.view(1, -1))
     # transposed (Q, P) for the products with the sources' phasors
     out = tuple(
@@ -88,11 +129,12 @@ def scene_relay(
     near_field: float,
     step: int,
     phase_per_metre: float,
+    cosines: bool = False,
 ) -> torch.Tensor:
     """The relayed samples (B, N, H, W) for samples (B, N, H, W) of one scene (depth and
     reflectance (H, W)), at unit efficiency; linear in ``samples`` (the graph is kept)."""
     b, n, h, w = samples.shape
-    wgt, wc, ws, src = relay_matrix(depth, fov_deg, near_field, step, phase_per_metre)
+    wgt, wc, ws, src = relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines)
     dt = samples.dtype
     wgt, wc, ws = wgt.to(dt), wc.to(dt), ws.to(dt)
     th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)

@@ -161,6 +161,12 @@ class Term:
         None."""
         return None
 
+    def signature_share(self, obs, ctx, pred):
+        """For a term that enters as a spread: the share (0 to 1) of ``pred``'s misfit that has
+        its signature (:mod:`~tof_fpn_torch.diagnosis.signature`); the ranking scales its
+        held-out gain by it. None: not scaled."""
+        return None
+
     # --- closed-form terms ---------------------------------------------------------------------
 
     def update_closed_form(self, model, obs, ctx, pred, sel: str):

@@ -30,6 +30,7 @@ from ... import constants as K
 from ...sim import PixelOffset
 from ..params import ParamSpec
 from ..readout import READOUT_KEYS, update_readout
+from ..signature import fine_share
 from .base import Term, r4
 
 __all__ = ["FPNPixelOffsetsTerm"]
@@ -65,6 +66,11 @@ class FPNPixelOffsetsTerm(Term):
 
     def effective_parameters(self, values: dict) -> float:
         return float(values.get("readout_fpn.columns_dof", 0.0))
+
+    def signature_share(self, obs, ctx, pred):
+        """Offsets per pixel and column: the share of the phasor's misfit finer than a
+        smoothing."""
+        return fine_share(obs, ctx, pred, phasor=True)
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         s = float(pred.s[ctx.mask_d].median()) if bool(ctx.mask_d.any()) else 1.0

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from ...sim import ImpulsivePixels
 from ..params import ParamSpec
+from ..signature import sporadic_share
 from .base import Term, r4
 
 __all__ = ["MAX_IMPULSIVE_RATE", "ImpulsivePixelsTerm"]
@@ -32,6 +33,10 @@ class ImpulsivePixelsTerm(Term):
 
     def outlier_rate(self, v: dict):
         return v["impulsive_pixels.rate"]
+
+    def signature_share(self, obs, ctx, pred):
+        """Impulsive frame-pixels come and go: the share of the outliers that are sporadic."""
+        return sporadic_share(obs, ctx, pred)
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         if obs.frames < 2 and obs.known.sum() < 100:

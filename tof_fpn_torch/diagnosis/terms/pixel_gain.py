@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from ...sim import PixelGain
 from ..params import SCALE_CYCLIC, ParamSpec
+from ..signature import fine_share
 from .base import Term, r4
 
 __all__ = ["TEXTURE_RMS", "PixelGainTerm"]
@@ -33,6 +34,10 @@ class PixelGainTerm(Term):
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         return [{"pixel_gain.rms": r} for r in (0.002, 0.01, 0.03)]
+
+    def signature_share(self, obs, ctx, pred):
+        """A gain per pixel: the share of the amplitude misfit finer than a smoothing."""
+        return fine_share(obs, ctx, pred)
 
     def describe(self, model, obs, pred) -> dict:
         return {"rms_percent": r4(model.values["pixel_gain.rms"] * 100)}

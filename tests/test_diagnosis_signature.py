@@ -1,0 +1,88 @@
+"""Signature shares (:mod:`tof_fpn_torch.diagnosis.signature`): the share of a misfit that is
+fine in space (a per-pixel gain or offset) or sporadic in time (impulsive frame-pixels), which
+scales a spread term's held-out gain in the ranking."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import torch
+
+from tof_fpn_torch.diagnosis.signature import FINE_SCALE_PX, fine_share, sporadic_share
+from tof_fpn_torch.sim import Camera
+
+H, W, T = 60, 80, 20
+
+
+def _case(res_a, res_d=None, depth=None, frames=None):
+    """obs / ctx / pred with amplitude 100, noise of the means 0.01 (amplitude) and 1e-4 m."""
+    mu = torch.full((H, W), 100.0, dtype=torch.float64)
+    n = torch.full((H, W), float(T), dtype=torch.float64)
+    depth = torch.full((H, W), 2.0, dtype=torch.float64) if depth is None else depth
+    m_d = depth + (0 if res_d is None else res_d)
+    obs = SimpleNamespace(
+        m_a=mu + res_a,
+        m_d=m_d,
+        n=n,
+        scene_depth=depth,
+        depth=frames,
+        amplitude=None if frames is None else mu.expand(T, H, W).clone(),
+        valid=None if frames is None else torch.ones(T, H, W, dtype=torch.bool),
+        frames=T,
+        camera=Camera,
+    )
+    ones = torch.ones(H, W, dtype=torch.bool)
+    ctx = SimpleNamespace(mask_a=ones, mask_d=ones)
+    sd_a = torch.full((H, W), 0.01 * math.sqrt(T), dtype=torch.float64)
+    sd_d = torch.full((H, W), 1e-4 * math.sqrt(T), dtype=torch.float64)
+    pred = SimpleNamespace(mu_a=mu, sd_a=sd_a, mu_d=depth, sd_d=sd_d, a0=mu, wrap=None)
+    return obs, ctx, pred
+
+
+def _smooth_field(scale: float) -> torch.Tensor:
+    yy, xx = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
+    return torch.exp(-((yy - 20.0) ** 2 + (xx - 50.0) ** 2) / (2 * scale**2)).double()
+
+
+def test_fine_share_tells_a_pixel_gain_from_a_smooth_misfit():
+    """A white gain per pixel: nearly all of its excess variance is fine; a bump of light 2.5 x
+    the smoothing scale wide: little of it; both stay so with a depth edge through the frame
+    (the smoothing does not cross it, and a step of the misfit at the edge is not fine)."""
+    gen = torch.Generator().manual_seed(0)
+    gain = 0.02 * torch.randn(H, W, generator=gen, dtype=torch.float64)
+    bump = 5.0 * _smooth_field(2.5 * FINE_SCALE_PX)
+    edge = torch.where(torch.arange(W).view(1, W) < W // 2, 2.0, 3.0).expand(H, W).double()
+    assert fine_share(*_case(100.0 * gain)) > 0.9
+    assert fine_share(*_case(bump)) < 0.1
+    stepped = torch.where(edge > 2.5, 2.0 * bump, bump)
+    assert fine_share(*_case(stepped, depth=edge)) < 0.1
+    # a mixture: the gain's share of the excess variance
+    want = float((100.0 * gain).pow(2).mean()) / float((stepped + 100.0 * gain).pow(2).mean())
+    assert abs(fine_share(*_case(stepped + 100.0 * gain, depth=edge)) - want) < 0.05
+    assert fine_share(*_case(torch.zeros(H, W, dtype=torch.float64))) is None  # nothing to share
+
+
+def test_fine_share_of_the_phasor_sees_depth_columns():
+    """Column delays (a read-out pattern) are fine in the phasor's residual; a smooth depth
+    bias is not."""
+    gen = torch.Generator().manual_seed(1)
+    cols = 0.003 * torch.randn(1, W, generator=gen, dtype=torch.float64).expand(H, W)
+    zero = torch.zeros(H, W, dtype=torch.float64)
+    assert fine_share(*_case(zero, res_d=cols), phasor=True) > 0.9
+    assert fine_share(*_case(zero, res_d=0.01 * _smooth_field(30.0)), phasor=True) < 0.1
+
+
+def test_sporadic_share_tells_impulses_from_a_fixed_misfit():
+    """Outliers in a quarter of the frames of their pixels: all sporadic; the same pixels off in
+    every frame: none; no outlier: None."""
+    depth = torch.full((H, W), 2.0, dtype=torch.float64)
+    frames = depth.expand(T, H, W).clone()
+    gen = torch.Generator().manual_seed(2)
+    hot = torch.rand(H, W, generator=gen) < 0.01
+    fire = torch.rand(T, H, W, generator=gen) < 0.25
+    sporadic = torch.where(hot & fire, frames + 1.0, frames)
+    fixed = torch.where(hot.expand(T, H, W), frames + 1.0, frames)
+    assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=sporadic)) == 1.0
+    assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=fixed)) == 0.0
+    assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=frames)) is None

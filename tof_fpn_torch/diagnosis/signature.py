@@ -1,0 +1,120 @@
+"""Signature shares: how much of the current misfit has the signature of a term that enters as a
+spread (a variance or an outlier mixture) rather than as a structure.
+
+A spread term fits any misfit: a random gain per pixel widens every amplitude mean until a
+smooth misfit of another effect (a second bounce the model does not hold yet) costs little; an
+outlier mixture takes the pixels of any gross misfit. What tells them from that misfit is where
+it lives, not how large it is:
+
+* **fine in space** (:func:`fine_share`; ``pixel_gain`` on the relative amplitude residuals,
+  ``fpn_pixel_offsets`` on the phasor's residuals): a per-pixel gain or offset varies from
+  pixel to pixel (a column pattern from column to column); the share of the excess variance of
+  the residuals left after a smoothing of ``FINE_SCALE_PX`` px (within the scene's depth
+  layers, so that a depth edge is not taken for fine structure) over the excess variance of the
+  residuals themselves;
+* **sporadic in time** (:func:`sporadic_share`, ``impulsive_pixels``): impulsive frame-pixels
+  come and go; the share of the frame-pixels beyond ``OUTLIER_Z`` sd that sit on pixels beyond
+  it in at most half the frames (a misfit fixed in time is beyond it in every frame).
+
+The ranking scales such a candidate's held-out gain by its share
+(:func:`~tof_fpn_torch.diagnosis.naming.rank`, ``signature_share`` in the ranking): it is
+credited with the part of the misfit that has its signature.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from .. import constants as K
+
+__all__ = ["DEPTH_LAYER_M", "FINE_SCALE_PX", "OUTLIER_Z", "fine_share", "sporadic_share"]
+
+#: Gaussian smoothing scale (px) above which amplitude structure is not per pixel
+FINE_SCALE_PX: float = 12.0
+#: depth layers (m) the smoothing stays within (neighbouring layers included)
+DEPTH_LAYER_M: float = 0.1
+#: a frame-pixel this many sd from the model is an outlier
+OUTLIER_Z: float = 5.0
+
+
+def _blur(x: torch.Tensor, s: float) -> torch.Tensor:
+    r = int(3 * s)
+    t = torch.arange(-r, r + 1, dtype=x.dtype)
+    k = torch.exp(-(t**2) / (2 * s * s))
+    k = k / k.sum()
+    z = F.conv2d(F.pad(x[None, None], (r, r, 0, 0)), k.view(1, 1, 1, -1))
+    return F.conv2d(F.pad(z, (0, 0, r, r)), k.view(1, 1, -1, 1))[0, 0]
+
+
+def _layered_smooth(x: torch.Tensor, m: torch.Tensor, depth: torch.Tensor, s: float):
+    """Normalised Gaussian smoothing of ``x`` over the pixels ``m`` within +-1 depth layer."""
+    layer = torch.floor(depth / DEPTH_LAYER_M).long()
+    num, den = {}, {}
+    for v in layer[m].unique().tolist():
+        sel = (m & (layer == v)).to(x.dtype)
+        num[v], den[v] = _blur(x * sel, s), _blur(sel, s)
+    out = torch.zeros_like(x)
+    for v in num:
+        n = sum(num[u] for u in (v - 1, v, v + 1) if u in num)
+        d = sum(den[u] for u in (v - 1, v, v + 1) if u in den)
+        out = torch.where(layer == v, n / d.clamp_min(1e-12), out)
+    return out
+
+
+def _fine(res: list, noise: list, m, depth) -> float | None:
+    """Share of the excess variance of the residual maps ``res`` (noise variances ``noise``)
+    left after the layered smoothing."""
+    tot = sum(float((r[m] ** 2).mean() - v[m].mean()) for r, v in zip(res, noise, strict=True))
+    if not math.isfinite(tot) or tot <= 0:
+        return None
+    fine = 0.0
+    for r, v in zip(res, noise, strict=True):
+        hp = r - _layered_smooth(torch.where(m, r, 0.0), m, depth, FINE_SCALE_PX)
+        fine += float((hp[m] ** 2).mean() - v[m].mean())
+    return min(max(fine / tot, 0.0), 1.0)
+
+
+def fine_share(obs, ctx, pred, phasor: bool = False) -> float | None:
+    """Share of the excess variance of the residuals finer than ``FINE_SCALE_PX`` (in [0, 1];
+    None when there is no excess: nothing to share): of the relative amplitude residuals, or
+    with ``phasor`` of the phasor's residual (radial from the amplitude, tangential from the
+    depth, DN: what a complex offset per pixel moves)."""
+    m = ctx.mask_a & ctx.mask_d & torch.isfinite(obs.m_a) & torch.isfinite(obs.m_d)
+    if int(m.sum()) < 16:
+        return None
+    depth = obs.scene_depth.to(torch.float64)
+    mu = pred.mu_a.detach().to(torch.float64)
+    va = pred.sd_a.detach() ** 2 / obs.n.clamp_min(1)
+    ra = obs.m_a - mu
+    if not phasor:
+        scale = mu.clamp_min(1e-12)
+        return _fine([ra / scale], [va / scale**2], m, depth)
+    k = 4 * math.pi * float(obs.camera().modulation_frequency) / K.SPEED_OF_LIGHT_AIR
+    rd = obs.m_d - pred.mu_d.detach()
+    if pred.wrap is not None:
+        rd = rd - pred.wrap * torch.round(rd / pred.wrap)
+    ka = k * pred.a0.detach()
+    vt = (pred.sd_d.detach() * ka) ** 2 / obs.n.clamp_min(1)
+    return _fine([ra, rd * ka], [va, vt], m, depth)
+
+
+def sporadic_share(obs, ctx, pred) -> float | None:
+    """Share of the outlying frame-pixels (depth or amplitude beyond ``OUTLIER_Z`` sd) on pixels
+    that are outliers in at most half their frames (None: no outlier, or a single frame)."""
+    if obs.frames < 2:
+        return None
+    d = obs.depth - pred.mu_d.detach()
+    if pred.wrap is not None:
+        d = d - pred.wrap * torch.round(d / pred.wrap)
+    a = obs.amplitude - pred.mu_a.detach()
+    far = (d.abs() > OUTLIER_Z * pred.sd_d.detach()) | (a.abs() > OUTLIER_Z * pred.sd_a.detach())
+    out = obs.valid & ctx.mask_d & far
+    count = out.sum(0)
+    total = int(count.sum())
+    if total == 0:
+        return None
+    n = obs.valid.sum(0).clamp_min(1)
+    return float(count[2 * count <= n].sum()) / total
