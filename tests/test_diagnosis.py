@@ -348,3 +348,22 @@ def test_cli_takes_a_cameras_own_file(tmp_path, capsys):
     assert (got["height"], got["width"], got["frames"]) == (h, w, 1)
     assert got["scene_estimated"]
     assert got["depth_pixels"] > 0.5 * h * w
+
+
+def test_a_single_frame_holds_the_conversion_gain():
+    """One frame has no temporal spread: the shot-noise share of the noise cannot be told from
+    the read noise, and the fit drifted along the conversion gain (to 1e32 e-/DN on the Azure
+    Kinect desk frame with two threads, until a bootstrap replicate had no pixel left). The gain
+    is held at its start from the data's noise level, the report says so, and one or two threads
+    give the same baseline."""
+    from tof_fpn_torch.diagnosis.data import observe
+    from tof_fpn_torch.diagnosis.run import _baseline
+
+    rec, scene = _recording(seed=3, frames=1)
+    start = _baseline(observe(rec, scene), None).values["camera.conversion_gain"]
+    outs = [diagnose(rec, scene, replicates=0, threads=t) for t in (1, 2)]
+    for out in outs:
+        assert out.baseline.values["camera.conversion_gain"] == start
+        assert any("single frame" in n for n in out.report["recording"]["notes"])
+    a, b = (o.baseline.values["camera.read_noise"] for o in outs)
+    assert abs(a - b) <= 1e-6 * abs(a)

@@ -124,24 +124,35 @@ def test_cached_scene_relay_equals_the_term_and_keeps_the_gradient():
     )
     resp = torch.tensor(1.7, dtype=torch.float64, requires_grad=True)
     relay = torch.tensor(0.05, dtype=torch.float64, requires_grad=True)
-    term = Multipath(0.01, 1.5, scene_relay=relay, field_of_view=60.0, near_field=1.0)
-    M._RELAY_CACHE.clear()
-    outs = []
-    for cached in (True, False):
-        samples = (act + amb * 0.8) * resp
-        state = SimState(cam, scene, samples, None)
-        if cached:
-            out = M.relay_cached(term, state, (act, amb), ("test",), 0.8, resp).samples
-        else:
-            out = term.apply(state).samples
-        (g_resp, g_relay) = torch.autograd.grad(out.sum(), (resp, relay))
-        outs.append((out.detach(), g_resp, g_relay))
-    assert len(M._RELAY_CACHE) == 1
-    (a, ga, ra), (b, gb, rb) = outs
-    assert float((a - b).abs().max()) <= 1e-9 * float(b.abs().max())
-    assert float((a - (act + amb * 0.8) * 1.7).abs().max()) > 1e-3 * float(b.abs().max())
-    assert float(ga) == pytest.approx(float(gb), rel=1e-9)
-    assert float(ra) == pytest.approx(float(rb), rel=1e-9)
+    free = torch.rand(24, 32, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    terms = (
+        Multipath(0.01, 1.5, scene_relay=relay, field_of_view=60.0, near_field=1.0),
+        # the member's form: free sources, both obliquities
+        Multipath(
+            scene_relay=torch.tensor(5.0, dtype=torch.float64, requires_grad=True),
+            near_field=0.2,
+            source_map=free,
+            cosines=True,
+        ),
+    )
+    for term in terms:
+        M._RELAY_CACHE.clear()
+        outs = []
+        for cached in (True, False):
+            samples = (act + amb * 0.8) * resp
+            state = SimState(cam, scene, samples, None)
+            if cached:
+                out = M.relay_cached(term, state, (act, amb), ("test",), 0.8, resp).samples
+            else:
+                out = term.apply(state).samples
+            (g_resp, g_relay) = torch.autograd.grad(out.sum(), (resp, term.scene_relay))
+            outs.append((out.detach(), g_resp, g_relay))
+        assert len(M._RELAY_CACHE) == 1
+        (a, ga, ra), (b, gb, rb) = outs
+        assert float((a - b).abs().max()) <= 1e-9 * float(b.abs().max())
+        assert float((a - (act + amb * 0.8) * 1.7).abs().max()) > 1e-3 * float(b.abs().max())
+        assert float(ga) == pytest.approx(float(gb), rel=1e-9)
+        assert float(ra) == pytest.approx(float(rb), rel=1e-9)
 
 
 def test_candidates_map_in_threads_keeps_the_order_and_the_thread_count():

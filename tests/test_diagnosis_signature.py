@@ -9,7 +9,12 @@ from types import SimpleNamespace
 
 import torch
 
-from tof_fpn_torch.diagnosis.signature import FINE_SCALE_PX, fine_share, sporadic_share
+from tof_fpn_torch.diagnosis.signature import (
+    FINE_SCALE_PX,
+    common_share,
+    fine_share,
+    sporadic_share,
+)
 from tof_fpn_torch.sim import Camera
 
 H, W, T = 60, 80, 20
@@ -86,3 +91,18 @@ def test_sporadic_share_tells_impulses_from_a_fixed_misfit():
     assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=sporadic)) == 1.0
     assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=fixed)) == 0.0
     assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=frames)) is None
+
+
+def test_common_share_tells_a_drift_from_outliers():
+    """A delay that moves every pixel of a frame: its frames' median course is their mean
+    course (share 1); hot pixels in some frames move the frames' means, not their medians."""
+    depth = torch.full((H, W), 2.0, dtype=torch.float64)
+    frames = depth.expand(T, H, W).clone()
+    gen = torch.Generator().manual_seed(3)
+    frames = frames + 1e-4 * torch.randn(T, H, W, generator=gen, dtype=torch.float64)
+    walk = 0.002 * torch.randn(T, generator=gen, dtype=torch.float64).cumsum(0)
+    drift = frames + walk.view(T, 1, 1)
+    hot = (torch.rand(T, H, W, generator=gen) < 0.002) & (torch.arange(T) % 3 == 0).view(T, 1, 1)
+    spikes = torch.where(hot, frames + 2.0, frames)
+    assert common_share(*_case(0.0 * depth, depth=depth, frames=drift)) > 0.95
+    assert common_share(*_case(0.0 * depth, depth=depth, frames=spikes)) < 0.05

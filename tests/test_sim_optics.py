@@ -194,3 +194,20 @@ def test_source_map_scales_the_light_each_point_relays():
         Multipath(scene_relay=0.01, source_map=torch.full((24, 32), -1.0))
     with pytest.raises(ValueError, match="frames are"):
         run(Multipath(scene_relay=0.01, source_map=torch.ones(10, 10)))
+
+
+def test_relay_cache_is_bounded_in_bytes(monkeypatch):
+    """The relay matrices are kept up to ``CACHE_BYTES`` (the least recently used dropped, the
+    newest always kept): several geometries stay cached when they fit."""
+    from tof_fpn_torch.sim import relay
+
+    depth = 1.0 + torch.rand(12, 16, generator=torch.Generator().manual_seed(0))
+    relay._CACHE.clear()
+    for fov in (50.0, 70.0, 90.0):
+        relay.relay_matrix(depth, fov, 0.3, 2, 0.84)
+    assert len(relay._CACHE) == 3
+    one = relay._nbytes(next(iter(relay._CACHE.values())))
+    monkeypatch.setattr(relay, "CACHE_BYTES", int(1.5 * one))
+    relay.relay_matrix(depth, 60.0, 0.3, 2, 0.84)
+    assert len(relay._CACHE) == 1 and next(iter(relay._CACHE))[2] == 60.0
+    relay._CACHE.clear()

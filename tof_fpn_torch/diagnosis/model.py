@@ -111,6 +111,8 @@ class DiagnosisModel:
         """Every fitted scalar of the model (core + its effects)."""
         out = []
         for s in CORE_SPECS:
+            if s.key in self.fixed:
+                continue
             if s.key.startswith(("readout_fpn.cos", "readout_fpn.sin")):
                 s = replace(s, scale=self.fpn_scale)
             elif s.key == "camera.read_noise":

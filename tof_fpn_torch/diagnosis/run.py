@@ -178,6 +178,14 @@ def _baseline(obs: Observations, baseline) -> DiagnosisModel:
             "read-out is the simulator's ReadoutFPN, whose default has random column offsets "
             "and gains besides the periodic ones; the baseline holds them (readout_fpn.*)"
         )
+    if obs.frames < 2:
+        # one frame has no temporal spread: the shot-noise share of the noise (the conversion
+        # gain) cannot be told from the read noise, and the fit drifts along that direction
+        model.fixed = model.fixed | frozenset({"camera.conversion_gain"})
+        obs.notes.append(
+            "a single frame: the conversion gain is held at its value from the data's noise "
+            f"level ({model.values['camera.conversion_gain']:.4g} e-/DN), not fitted"
+        )
     for term in CATALOGUE.values():
         extra = term.baseline_stated(obs, model)
         fixed = extra is not None

@@ -14,7 +14,10 @@ it lives, not how large it is:
   residuals themselves;
 * **sporadic in time** (:func:`sporadic_share`, ``impulsive_pixels``): impulsive frame-pixels
   come and go; the share of the frame-pixels beyond ``OUTLIER_Z`` sd that sit on pixels beyond
-  it in at most half the frames (a misfit fixed in time is beyond it in every frame).
+  it in at most half the frames (a misfit fixed in time is beyond it in every frame);
+* **common to a frame** (:func:`common_share`, ``temporal_drift`` and its member): a drift
+  moves every pixel of a frame together, so the frames' median residuals vary as much as their
+  mean residuals; a few outlying pixels move a frame's mean, not its median.
 
 The ranking scales such a candidate's held-out gain by its share
 (:func:`~tof_fpn_torch.diagnosis.naming.rank`, ``signature_share`` in the ranking): it is
@@ -30,7 +33,14 @@ import torch.nn.functional as F
 
 from .. import constants as K
 
-__all__ = ["DEPTH_LAYER_M", "FINE_SCALE_PX", "OUTLIER_Z", "fine_share", "sporadic_share"]
+__all__ = [
+    "DEPTH_LAYER_M",
+    "FINE_SCALE_PX",
+    "OUTLIER_Z",
+    "common_share",
+    "fine_share",
+    "sporadic_share",
+]
 
 #: Gaussian smoothing scale (px) above which amplitude structure is not per pixel
 FINE_SCALE_PX: float = 12.0
@@ -118,3 +128,30 @@ def sporadic_share(obs, ctx, pred) -> float | None:
         return None
     n = obs.valid.sum(0).clamp_min(1)
     return float(count[2 * count <= n].sum()) / total
+
+
+def common_share(obs, ctx, pred) -> float | None:
+    """The frames' variance about the recording's course of the median residual over that of
+    the mean residual (depth and relative amplitude, each in units of its typical per-frame
+    noise), in [0, 1]; None for fewer than 3 frames."""
+    if obs.frames < 3:
+        return None
+    m = ctx.mask_d & ctx.mask_a
+    if int(m.sum()) < 16:
+        return None
+    d = obs.depth - pred.mu_d.detach()
+    if pred.wrap is not None:
+        d = d - pred.wrap * torch.round(d / pred.wrap)
+    mu = pred.mu_a.detach().clamp_min(1e-12)
+    a = (obs.amplitude - mu) / mu
+    ok = obs.valid & m
+    num = den = 0.0
+    for r, sd in ((d, pred.sd_d.detach()), (a, pred.sd_a.detach() / mu)):
+        x = torch.where(ok, r, torch.nan).reshape(obs.frames, -1)
+        scale = float(sd[m].median()) ** 2 or 1.0
+        mean, med = x.nanmean(1), x.nanmedian(1).values
+        num += float(((med - med.nanmean()) ** 2).nansum()) / scale
+        den += float(((mean - mean.nanmean()) ** 2).nansum()) / scale
+    if not math.isfinite(den) or den <= 0:
+        return None
+    return min(max(num / den, 0.0), 1.0)

@@ -33,10 +33,12 @@ from collections import OrderedDict
 
 import torch
 
-__all__ = ["CACHE_SIZE", "normals", "relay_matrix", "scene_relay"]
+__all__ = ["CACHE_BYTES", "normals", "relay_matrix", "scene_relay"]
 
-#: Relay matrices (one per frame size, geometry and step) kept in memory.
-CACHE_SIZE: int = 2
+#: Relay matrices (one per frame size, geometry and step) kept in memory, the least recently used
+#: dropped beyond this many bytes (the newest is always kept): the diagnosis profiles a few
+#: geometries per candidate and a cache of two was recomputed in every round.
+CACHE_BYTES: int = 1 << 30
 
 _CACHE: OrderedDict = OrderedDict()
 _LOCK = threading.Lock()  # the diagnosis fits candidates in threads
@@ -56,6 +58,10 @@ def relay_matrix(
     thread-safe."""
     with _LOCK:
         return _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines)
+
+
+def _nbytes(entry) -> int:
+    return sum(t.numel() * t.element_size() for t in entry)
 
 
 def normals(points: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
@@ -116,7 +122,7 @@ def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines=Fal
         x.T.contiguous().float() for x in (wgt, wgt * torch.cos(psi), wgt * torch.sin(psi))
     ) + (src,)
     _CACHE[key] = out
-    while len(_CACHE) > CACHE_SIZE:
+    while len(_CACHE) > 1 and sum(_nbytes(v) for v in _CACHE.values()) > CACHE_BYTES:
         _CACHE.popitem(last=False)
     return out
 

@@ -44,14 +44,20 @@ _RELAY_UNITS: list = [None]  # the unit images the cached relays belong to
 def relay_cached(t, state, units, key, amb_irr, resp):
     """``t.apply(state)`` when ``state.samples`` are still the photons' ``(act + amb_irr amb)
     resp``: the scene relay is linear in the samples, so the relays of the two cached unit
-    images are computed once per scene and geometry and scaled (the (sources x pixels) products
+    images are computed once per scene, geometry and source map and scaled (the (sources x pixels) products
     and their backward pass ran in every prediction: a third of a diagnosis with multipath)."""
     if isinstance(t.scene_relay, (int, float)) and t.scene_relay == 0:
         return t.apply(state)
     if _RELAY_UNITS[0] is not units:  # other unit images (another scene): the cache is stale
         _RELAY_CACHE.clear()
         _RELAY_UNITS[0] = units
-    rkey = (key, float(t.field_of_view), float(t.near_field), int(t.relay_step))
+    m = t.source_map
+    mkey = None
+    if m is not None:  # by content: the map is copied with every model
+        ramp = torch.arange(m.numel(), dtype=torch.float64).view(m.shape)
+        mkey = (tuple(m.shape), float(m.sum()), float((m.double() * ramp).sum()))
+    geo = (float(t.field_of_view), float(t.near_field), int(t.relay_step), bool(t.cosines))
+    rkey = (key, *geo, mkey)
     rel = _RELAY_CACHE.get(rkey)
     if rel is None:
         with torch.no_grad():

@@ -42,7 +42,7 @@ from ...sim.optics import source_step
 from ...sim.relay import relay_matrix
 from ..readout import rotated_residuals
 from .base import Term, r4
-from .multipath import FIELDS_OF_VIEW
+from .multipath import FIELDS_OF_VIEW, relay_cached
 
 __all__ = [
     "GEOMETRIES",
@@ -199,7 +199,10 @@ class MultipathSourcesTerm(Term):
     def apply_mean(self, state, v: dict, model, chain):
         if model.profiles.get(_KEY) is None:
             return state
-        return self.simulator_term(v, model).apply(state)
+        t = self.simulator_term(v, model)
+        if state.samples is chain.photons:  # linear in the photons: the cached unit relays
+            return relay_cached(t, state, chain.units, chain.key, chain.ambient, chain.responsivity)
+        return t.apply(state)
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         return [{}]

@@ -7,6 +7,7 @@ import torch
 
 from ...sim import TemporalDrift
 from ..params import SCALE_DEPTH, ParamSpec
+from ..signature import common_share
 from .base import Term, least_squares, r4
 
 __all__ = ["TemporalDriftTerm"]
@@ -28,6 +29,11 @@ class TemporalDriftTerm(Term):
     axes = ("depth_frame|frame", "amp_frame|frame")
     about = "warm-up: delay D (1 - exp(-t/tau)), light 1 + a (1 - exp(-t/tau))"
     revealed_without_scene = True
+
+    def signature_share(self, obs, ctx, pred):
+        """A drift moves a frame's pixels together: the share of the frames' course common to
+        their pixels (median against mean)."""
+        return common_share(obs, ctx, pred)
 
     def simulator_term(self, v: dict, model):
         return TemporalDrift(

@@ -18,6 +18,7 @@ from __future__ import annotations
 import torch
 
 from ...sim import TemporalDrift
+from ..signature import common_share
 from .base import Term, r4, shrink_to_zero
 
 __all__ = ["TemporalDriftFramesTerm", "frame_profiles"]
@@ -77,6 +78,11 @@ class TemporalDriftFramesTerm(Term):
     revealed_without_scene = True
     closed_form = True
     profile_keys = ("frame_delays", "frame_light")
+
+    def signature_share(self, obs, ctx, pred):
+        """A drift moves a frame's pixels together: the share of the frames' course common to
+        their pixels (median against mean)."""
+        return common_share(obs, ctx, pred)
 
     def frame_means(self, v: dict, obs, model=None):
         if model is None or "frame_delays" not in model.profiles:
