@@ -296,6 +296,16 @@ def test_two_forms_of_one_effect_make_one_stage(setup):
         one = joined[0].apply(SimState(m.camera, scene, s.clone(), None)).samples
         two = b.apply(a.apply(SimState(m.camera, scene, s.clone(), None))).samples
         assert torch.equal(one, two), member.name
+        # and model.json holds it: the stage's parts written as terms, the model read back
+        import json
+
+        from tof_fpn_torch.diagnosis.persist import load_model, model_to_dict
+
+        data = json.loads(json.dumps(model_to_dict(m)))
+        stage = next(t for t in data["simulation"] if t["term"] == "Joined")
+        assert [p["term"] for p in stage["parts"]] == [type(a).__name__, type(b).__name__]
+        back = load_model(data)
+        assert back.effects == m.effects and back.values == pytest.approx(m.values), member.name
 
 
 def test_hessian_hint_fills_the_known_block():

@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 
 from ..sim import Camera
+from ..sim import Term as SimTerm
 from .catalogue import CATALOGUE
 from .model import CORE_SPECS, DiagnosisModel
 from .readout import READOUT_KEYS
@@ -31,6 +32,8 @@ MODEL_VERSION = 1
 def _plain(x):
     if isinstance(x, torch.Tensor):
         return x.detach().cpu().double().tolist()
+    if isinstance(x, SimTerm):  # a part of a Joined stage (two forms of one effect)
+        return _term_dict(x)
     if isinstance(x, (tuple, list)):
         return [_plain(v) for v in x]
     if isinstance(x, float) and not math.isfinite(x):
@@ -54,14 +57,16 @@ def model_to_dict(model: DiagnosisModel) -> dict:
         "fpn_scale": model.fpn_scale,
         "fixed": sorted(model.fixed),
         "random_columns": model.random_columns,
-        "simulation": [
-            {
-                "term": type(t).__name__,
-                "name": t.name,
-                **{f.name: _plain(getattr(t, f.name)) for f in fields(t) if f.name != "name"},
-            }
-            for t in sim.terms
-        ],
+        "simulation": [_term_dict(t) for t in sim.terms],
+    }
+
+
+def _term_dict(t) -> dict:
+    """A simulator term as JSON data: its class, name and fields."""
+    return {
+        "term": type(t).__name__,
+        "name": t.name,
+        **{f.name: _plain(getattr(t, f.name)) for f in fields(t) if f.name != "name"},
     }
 
 
