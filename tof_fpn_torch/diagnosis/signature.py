@@ -51,6 +51,8 @@ OUTLIER_Z: float = 5.0
 
 
 def _blur(x: torch.Tensor, s: float) -> torch.Tensor:
+    """Separable Gaussian smoothing (sd ``s`` px, 3 sd each side), zeros beyond the frame (the
+    diagnosis layer does not import kornia)."""
     r = int(3 * s)
     t = torch.arange(-r, r + 1, dtype=x.dtype)
     k = torch.exp(-(t**2) / (2 * s * s))

@@ -20,13 +20,14 @@ moves away), from where surfaces face each other (smooth in space, strongest nea
 surface, the same relative change for dark and bright pixels of one place: a gain or pixel
 offset follows the pixel, a column pattern the column).
 
-Fit, in closed form between the L-BFGS rounds: the residuals rotated into each pixel's phase
-(radial from the amplitude, tangential from the depth, as the read-out pattern's, winsorised at
-``WINSOR_SIGMA``) are linear in the weights (``R_p`` rotated by ``-phi_p``), so the weights are
-the non-negative weighted least-squares solution (coordinate descent); the geometry (the
-catalogue's fields of view, with and without the cosines) is profiled when the term enters and
-then kept. The AIC counts the positive weights and the
-geometry (``values["multipath_sources.dof"]``). The report names it ``multipath``.
+Fit, in closed form between the L-BFGS rounds: the observed mean phasor minus the model's
+direct one (the model without the relay), rotated into the direct phase, is linear in the
+weights (``R_p`` rotated by ``-phi_p``; no linearisation of the decoder), so the weights are the
+non-negative least-squares solution (coordinate descent), weighted by the radial and tangential
+noise of the read-out pattern's residuals; the geometry (the catalogue's fields of view, with
+and without the cosines) is profiled when the term enters and then kept. The AIC counts the
+positive weights and the geometry (``values["multipath_sources.dof"]``). The report names it
+``multipath``.
 """
 
 from __future__ import annotations
@@ -49,7 +50,6 @@ __all__ = [
     "NEAR_FIELD_M",
     "NNLS_SWEEPS",
     "SOURCE_BLOCK",
-    "WINSOR_SIGMA",
     "MultipathSourcesTerm",
     "source_map",
 ]
@@ -64,9 +64,6 @@ NEAR_FIELD_M: float = 0.2
 GEOMETRIES: tuple[tuple[float, bool], ...] = tuple(
     (fov, c) for fov in FIELDS_OF_VIEW for c in (True, False)
 )
-#: residuals beyond this many sd are pulled in to it (a strong relay near its source is
-#: signal; an outlier frame or a clip is not)
-WINSOR_SIGMA: float = 10.0
 #: sweeps of the non-negative coordinate descent (stopped earlier once converged)
 NNLS_SWEEPS: int = 500
 _KEY = "multipath_sources"  # profiles: the block weights (BY, BX) and the (H, W) map
