@@ -208,10 +208,13 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None, hint=None):
     the autograd gradient, eigenvalues made positive) maps a unit step to one standard error of
     every parameter combination, so the badly conditioned directions (read noise vs shot noise,
     amplitude vs conversion gain) converge in a few iterations. Returns the model, its NLL and
-    the whitening matrix (passed back in, a second round reuses it)."""
+    the whitening matrix (passed back in, a second round reuses it). A whitening built from a
+    ``hint`` under which L-BFGS makes no step is replaced by a fresh one and L-BFGS run again."""
     objective, u0, values, keys, charges = _objective(model, obs, ctx, sel, specs, n_obs)
+    known = None
     if tmat is None:
-        f0, tmat = _whitening(objective, u0, _known(hint, keys))
+        known = _known(hint, keys)
+        f0, tmat = _whitening(objective, u0, known)
         if f0 is None:
             return model, math.inf, None
     else:
@@ -219,12 +222,24 @@ def _minimise(model, obs, ctx, sel, specs, n_obs, iters, tmat=None, hint=None):
             f0 = objective(u0)
         if f0 is None:
             return model, math.inf, tmat
-    w = _lbfgs(objective, u0, tmat, iters)
+
+    def descend(t: torch.Tensor):
+        w = _lbfgs(objective, u0, t, iters)
+        with torch.no_grad():
+            return u0 + t @ w, objective(u0 + t @ w)
+
+    u, final = descend(tmat)
+    if known is not None and (final is None or float(f0) - float(final) < FIT_TOL / n_obs):
+        # no step from the hint's whitening: the hint is the Hessian of a nearby model, and a
+        # closed-form update (or a misfit the term takes up) can move the model far from it,
+        # where it no longer preconditions (the fit stalled at its start); a fresh one
+        f0, tmat = _whitening(objective, u0, None)
+        if f0 is None:
+            return model, math.inf, None
+        u, final = descend(tmat)
+    if final is None or float(final) > float(f0):
+        return model, float(f0) * n_obs, tmat
     with torch.no_grad():
-        u = u0 + tmat @ w
-        final = objective(u)
-        if final is None or float(final) > float(f0):
-            return model, float(f0) * n_obs, tmat
         v = values(u)
     out = model.copy()
     for k in keys + [c for c in charges if c not in keys]:

@@ -42,10 +42,12 @@ _RELAY_UNITS: list = [None]  # the unit images the cached relays belong to
 
 
 def relay_cached(t, state, units, key, amb_irr, resp):
-    """``t.apply(state)`` when ``state.samples`` are still the photons' ``(act + amb_irr amb)
-    resp``: the scene relay is linear in the samples, so the relays of the two cached unit
-    images are computed once per scene, geometry and source map and scaled (the (sources x pixels) products
-    and their backward pass ran in every prediction: a third of a diagnosis with multipath)."""
+    """``state`` with ``t``'s uniform relay applied and its scene relay of the photons
+    ``(act + amb_irr amb) resp`` added (``t.apply(state)`` when ``state.samples`` are still the
+    photons): the scene relay is linear in the photons, so the relays of the two cached unit
+    images are computed once per scene, geometry and source map and scaled (the (sources x
+    pixels) products and their backward pass ran in every prediction: a third of a diagnosis
+    with multipath)."""
     if isinstance(t.scene_relay, (int, float)) and t.scene_relay == 0:
         return t.apply(state)
     if _RELAY_UNITS[0] is not units:  # other unit images (another scene): the cache is stale

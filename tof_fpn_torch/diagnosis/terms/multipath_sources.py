@@ -5,12 +5,11 @@ The catalogue's relay (:class:`~tof_fpn_torch.sim.Multipath`, ``scene_relay``) l
 point relay its light with one Lambertian efficiency. A real room is not so even: a glossy floor
 mirrors the emitter onto the walls, one bright patch lights its surroundings, a diffuse wall
 hardly relays at all. This member keeps the geometry of a second bounce and frees the sources:
-the scene, back-projected through the camera, is cut into blocks of ``SOURCE_BLOCK`` x
-``SOURCE_BLOCK`` source patches (:func:`~tof_fpn_torch.sim.optics.source_step` px apart) and
-block ``b`` relays its light with its own weight ``w_b >= 0``. Pixel ``p`` then reads, besides
-its direct phasor ``X_p``,
+the scene, back-projected through the camera, is sampled at source patches
+(:func:`~tof_fpn_torch.sim.optics.source_step` px apart) and patch ``q`` relays its light with
+its own weight ``w_q >= 0``. Pixel ``p`` then reads, besides its direct phasor ``X_p``,
 
-    R_p = rho_p sum_b w_b sum_{q in b} F_pq X_q e^{j psi_pq},
+    R_p = rho_p sum_q w_q F_pq X_q e^{j psi_pq},
 
 ``F_pq`` the Lambertian form factor with both obliquities (:mod:`tof_fpn_torch.sim.relay`,
 ``cosines=True``: a floor lights the walls, not itself), ``psi_pq`` the phase of the extra
@@ -23,11 +22,13 @@ offset follows the pixel, a column pattern the column).
 Fit, in closed form between the L-BFGS rounds: the observed mean phasor minus the model's
 direct one (the model without the relay), rotated into the direct phase, is linear in the
 weights (``R_p`` rotated by ``-phi_p``; no linearisation of the decoder), so the weights are the
-non-negative least-squares solution (coordinate descent), weighted by the radial and tangential
-noise of the read-out pattern's residuals; the geometry (the catalogue's fields of view, with
-and without the cosines) is profiled when the term enters and then kept. The AIC counts the
-positive weights and the geometry (``values["multipath_sources.dof"]``). The report names it
-``multipath``.
+non-negative least-squares solution (:func:`nnls`, Lawson-Hanson), weighted by the radial and
+tangential noise of the read-out pattern's residuals. In two steps: one weight per block of
+``SOURCE_BLOCK`` x ``SOURCE_BLOCK`` patches (which also profiles the geometry, the catalogue's
+fields of view with and without the cosines, when the term enters; then it is kept), then every
+patch of a relaying block on its own (a glossy patch is smaller than a block: a block's weight
+spreads its light over the block and misfits next to it). The AIC counts the positive weights
+and the geometry (``values["multipath_sources.dof"]``). The report names it ``multipath``.
 """
 
 from __future__ import annotations
@@ -48,13 +49,14 @@ from .multipath import FIELDS_OF_VIEW, relay_cached
 __all__ = [
     "GEOMETRIES",
     "NEAR_FIELD_M",
-    "NNLS_SWEEPS",
+    "NNLS_ITERS",
     "SOURCE_BLOCK",
+    "nnls",
     "MultipathSourcesTerm",
     "source_map",
 ]
 
-#: source patches per side of a block with its own weight (8 px apart: 24 px blocks)
+#: source patches per side of a block with one weight in the first step of the fit
 SOURCE_BLOCK: int = 3
 #: near-field length (m) of the form factor (it keeps the relay between close points finite)
 NEAR_FIELD_M: float = 0.2
@@ -64,73 +66,129 @@ NEAR_FIELD_M: float = 0.2
 GEOMETRIES: tuple[tuple[float, bool], ...] = tuple(
     (fov, c) for fov in FIELDS_OF_VIEW for c in (True, False)
 )
-#: sweeps of the non-negative coordinate descent (stopped earlier once converged)
-NNLS_SWEEPS: int = 500
-_KEY = "multipath_sources"  # profiles: the block weights (BY, BX) and the (H, W) map
+#: most variables the non-negative least squares frees, one at a time (Lawson-Hanson)
+NNLS_ITERS: int = 1000
+_KEY = "multipath_sources"  # profiles: the source weights (SY, SX) and the (H, W) map
 _MAP = "multipath_sources_map"
 
 
-def _grid(h: int, w: int) -> tuple[int, torch.Tensor, torch.Tensor]:
-    """``(step, block row of every source row, block column of every source column)``."""
+def _grid(h: int, w: int) -> tuple[int, int, int]:
+    """``(step, source rows, source columns)`` of the relay's source patches."""
     step = source_step(h, w)
-    ny, nx = len(range(step // 2, h, step)), len(range(step // 2, w, step))
-    return step, torch.arange(ny) // SOURCE_BLOCK, torch.arange(nx) // SOURCE_BLOCK
+    return step, len(range(step // 2, h, step)), len(range(step // 2, w, step))
+
+
+def _blocks(ny: int, nx: int) -> torch.Tensor:
+    """The block of ``SOURCE_BLOCK`` x ``SOURCE_BLOCK`` sources each source (row-major) is in."""
+    by, bx = torch.arange(ny) // SOURCE_BLOCK, torch.arange(nx) // SOURCE_BLOCK
+    return (by.view(-1, 1) * (int(bx.max()) + 1) + bx.view(1, -1)).reshape(-1)
 
 
 def source_map(weights: torch.Tensor, h: int, w: int) -> torch.Tensor:
-    """The (H, W) share of light each scene point relays for block ``weights`` (BY, BX)."""
-    step, by, bx = _grid(h, w)
-    iy = torch.clamp(torch.arange(h) // step, max=len(by) - 1)
-    ix = torch.clamp(torch.arange(w) // step, max=len(bx) - 1)
-    return weights[by[iy].view(h, 1), bx[ix].view(1, w)].to(torch.float64)
+    """The (H, W) share of light each scene point relays for source ``weights`` (SY, SX): each
+    point takes its source patch's weight."""
+    step, ny, nx = _grid(h, w)
+    iy = torch.clamp(torch.arange(h) // step, max=ny - 1)
+    ix = torch.clamp(torch.arange(w) // step, max=nx - 1)
+    return weights[iy.view(h, 1), ix.view(1, w)].to(torch.float64)
 
 
-def _nnls(g: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``argmin_{x >= 0} x'Gx / 2 - b'x`` by cyclic coordinate descent."""
-    x = np.zeros_like(b)
-    d = np.maximum(np.diag(g), 1e-300)
-    scale = float(np.abs(b).max()) or 1.0
-    for _ in range(NNLS_SWEEPS):
-        moved = 0.0
-        for i in range(len(b)):
-            new = max(0.0, x[i] + (b[i] - g[i] @ x) / d[i])
-            moved = max(moved, abs(new - x[i]) * d[i])
-            x[i] = new
-        if moved < 1e-9 * scale:
+def nnls(g: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``argmin_{x >= 0} x'Gx / 2 - b'x`` for a positive semi-definite ``G`` (n, n): the
+    active-set method of Lawson and Hanson ("Solving Least Squares Problems", 1974, ch. 23) on
+    the normal equations (with ``G = A'A``, ``b = A'y`` it is ``scipy.optimize.nnls(A, y)``)."""
+    n = len(b)
+    x = np.zeros(n)
+    passive = np.zeros(n, bool)
+    tol = 1e-10 * max(float(np.abs(b).max(initial=0.0)), 1e-300)
+    ridge = 1e-12 * max(float(np.trace(g)) / max(n, 1), 1e-300)  # a singular G (unlit sources)
+    for _ in range(NNLS_ITERS):
+        grad = b - g @ x
+        free = np.flatnonzero(~passive & (grad > tol))
+        if free.size == 0:
             break
+        passive[free[np.argmax(grad[free])]] = True
+        for _ in range(n + 1):  # the optimum on the passive set, stepped back into x >= 0
+            idx = np.flatnonzero(passive)
+            z = np.zeros(n)
+            z[idx] = np.linalg.solve(g[np.ix_(idx, idx)] + ridge * np.eye(idx.size), b[idx])
+            if (z[idx] > 0).all():
+                x = z
+                break
+            neg = idx[z[idx] <= 0]
+            ratio = x[neg] / (x[neg] - z[neg])
+            x = x + float(ratio.min()) * (z - x)
+            x[neg[np.argmin(ratio)]] = 0.0  # the bound that stops the step is hit exactly
+            passive &= x > 0
+            x[~passive] = 0.0
     return x
 
 
-def _loadings(scene, pred, k: float, fov: float, cosines: bool) -> tuple[torch.Tensor, ...]:
-    """Radial and tangential loadings (blocks, P) of the block weights (DN per unit weight) on
-    ``pred``'s phasors, for the ``scene``'s geometry."""
+def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Tensor):
+    """Radial and tangential loadings (G, P) on ``pred``'s phasors (DN per unit weight) of the
+    weights of the source groups ``group`` (the group of every source, 0 .. G - 1), for the
+    ``scene``'s geometry."""
     depth = scene.depth[0, 0]
     h, w = depth.shape
-    step, by, bx = _grid(h, w)
+    step = source_step(h, w)
     _, wc, ws, src = relay_matrix(depth, fov, NEAR_FIELD_M, step, k, cosines=bool(cosines))
     phi = (k * pred.mu_d.detach()).reshape(-1).to(torch.float64)
     a0 = pred.a0.detach().reshape(-1).to(torch.float64)
     xr, xi = a0[src] * torch.cos(phi[src]), a0[src] * torch.sin(phi[src])
-    block = (by.view(-1, 1) * (int(bx.max()) + 1) + bx.view(1, -1)).reshape(-1)
-    onehot = torch.zeros(int(block.max()) + 1, len(src), dtype=torch.float64)
-    onehot[block, torch.arange(len(src))] = 1.0
-    wc, ws = wc.to(torch.float64), ws.to(torch.float64)
-    lr = (onehot * xr) @ wc - (onehot * xi) @ ws  # (blocks, P): sum_q F X_q e^{j psi}
-    li = (onehot * xr) @ ws + (onehot * xi) @ wc
+    onehot = torch.zeros(int(group.max()) + 1, len(src), dtype=torch.float64)
+    onehot[group, torch.arange(len(src))] = 1.0
+    # (G, P): sum_q F X_q e^{j psi}, in the relay matrices' float32 (a float64 copy of the
+    # (sources, P) matrices cost more than the products; the sums are over a few hundred terms)
+    br, bi = (onehot * xr).to(wc.dtype), (onehot * xi).to(wc.dtype)
+    lr = (br @ wc - bi @ ws).to(torch.float64)
+    li = (br @ ws + bi @ wc).to(torch.float64)
     rho = scene.reflectance[0, 0].reshape(1, -1).to(torch.float64)
     lr, li = lr * rho, li * rho
     c, s = torch.cos(phi).view(1, -1), torch.sin(phi).view(1, -1)
     return lr * c + li * s, li * c - lr * s
 
 
+def _solve(ctx, direct, k, geometry, group, fit) -> tuple[float, np.ndarray]:
+    """``(gain, group weights)``: the non-negative least squares of the groups' weights on the
+    rotated residuals ``fit = (radial, tangential, their weights)``; gain = the weighted sum of
+    squares it removes, halved."""
+    ra, ta, wr, wt = fit
+    rad, tan = _loadings(ctx.scene, direct, k, *geometry, group)
+    g = ((rad * wr) @ rad.T + (tan * wt) @ tan.T).numpy()
+    b = ((rad * wr) @ ra + (tan * wt) @ ta).numpy()
+    x = nnls(g, b)
+    return float(b @ x - 0.5 * x @ g @ x), x
+
+
+def _refined(block: torch.Tensor, x: np.ndarray) -> torch.Tensor:
+    """Source groups: every source of a relaying block (weight > 0) on its own, the other
+    blocks whole."""
+    lit = torch.from_numpy(x > 0)[block]
+    key = torch.where(lit, torch.arange(len(block)) + int(block.max()) + 1, block)
+    return torch.unique(key, return_inverse=True)[1]
+
+
+def _two_step(ctx, direct, k, geometry, block, fit):
+    """``((gain, weights, groups), geometry)``: the blocks' weights, then the sources of the
+    relaying blocks on their own."""
+    x = _solve(ctx, direct, k, geometry, block, fit)[1]
+    group = _refined(block, x)
+    return (*_solve(ctx, direct, k, geometry, group, fit), group), geometry
+
+
+def _gain(t) -> float:
+    return t[0][0]
+
+
 def update_sources(model, obs, ctx, pred, sel: str = "all"):
-    """``model`` with the block weights and geometry estimated in closed form from the
+    """``model`` with the source weights and geometry estimated in closed form from the
     residuals of ``sel`` pixels against the model without the relay (module docstring)."""
     from ..model import predict  # late: the model imports the catalogue
 
     h, w = obs.shape
     k = 4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR
-    _, by, bx = _grid(h, w)
+    _, ny, nx = _grid(h, w)
+    block = _blocks(ny, nx)
     with torch.no_grad():
         direct = predict(model.without(_KEY), obs, scene=ctx.scene)
         _, _, va, vt, _ = rotated_residuals(model, obs, pred, k)
@@ -144,24 +202,18 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
         ok = ok & torch.isfinite(ra) & torch.isfinite(ta) & (va > 0) & (vt > 0)
         wr = torch.where(ok, 1.0 / va.clamp_min(1e-300), torch.zeros_like(va))
         wt = torch.where(ok, 1.0 / vt.clamp_min(1e-300), torch.zeros_like(vt))
-        ra, ta = torch.where(ok, ra, 0.0), torch.where(ok, ta, 0.0)
-        best = None
+        fit = (torch.where(ok, ra, 0.0), torch.where(ok, ta, 0.0), wr, wt)
         geometries = GEOMETRIES
         if _KEY in model.profiles:  # profiled once, when the term enters; then kept
             geometries = (
                 (model.values[f"{_KEY}.field_of_view"], bool(model.values[f"{_KEY}.cosines"])),
             )
-        for fov, cosines in geometries:
-            rad, tan = _loadings(ctx.scene, direct, k, fov, cosines)
-            g = (rad * wr) @ rad.T + (tan * wt) @ tan.T
-            b = (rad * wr) @ ra + (tan * wt) @ ta
-            x = _nnls(g.numpy(), b.numpy())
-            gain = float(b.numpy() @ x - 0.5 * x @ g.numpy() @ x)
-            if best is None or gain > best[0]:
-                best = (gain, fov, cosines, x)
-    _, fov, cosines, x = best
+        # per geometry, one weight per block, then the relaying blocks' sources freed one by
+        # one (a small glossy patch is finer than a block); the geometry that gains most
+        best = max((_two_step(ctx, direct, k, geo, block, fit) for geo in geometries), key=_gain)
+    (_, x, group), (fov, cosines) = best
     out = model.copy()
-    weights = torch.from_numpy(x).view(int(by.max()) + 1, int(bx.max()) + 1)
+    weights = torch.from_numpy(x)[group].view(ny, nx)
     out.profiles[_KEY] = weights
     out.profiles[_MAP] = source_map(weights, h, w)
     out.values[f"{_KEY}.field_of_view"] = fov
@@ -171,7 +223,7 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
 
 
 class MultipathSourcesTerm(Term):
-    """No scalar parameters: the block weights (``model.profiles["multipath_sources"]``) and the
+    """No scalar parameters: the source weights (``model.profiles["multipath_sources"]``) and the
     geometry are estimated in closed form (:func:`update_sources`)."""
 
     name = "multipath_sources"
@@ -196,10 +248,11 @@ class MultipathSourcesTerm(Term):
     def apply_mean(self, state, v: dict, model, chain):
         if model.profiles.get(_KEY) is None:
             return state
+        # the relay of the direct light, from the cached relays of the unit images (linear in
+        # the photons), also after the catalogue's relay: a relay of relayed light is of third
+        # order (the simulator's stage relays what reaches it; the two differ by that order)
         t = self.simulator_term(v, model)
-        if state.samples is chain.photons:  # linear in the photons: the cached unit relays
-            return relay_cached(t, state, chain.units, chain.key, chain.ambient, chain.responsivity)
-        return t.apply(state)
+        return relay_cached(t, state, chain.units, chain.key, chain.ambient, chain.responsivity)
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         return [{}]
@@ -216,17 +269,19 @@ class MultipathSourcesTerm(Term):
         out = {
             "field_of_view_deg": r4(v.get(f"{_KEY}.field_of_view", float("nan"))),
             "form_factor_cosines": bool(v.get(f"{_KEY}.cosines", 1.0)),
-            "relaying_blocks": int((x > 0).sum()) if x is not None else 0,
-            "blocks": list(x.shape) if x is not None else [],
+            "relaying_sources": int((x > 0).sum()) if x is not None else 0,
+            "sources": list(x.shape) if x is not None else [],
             "effective_parameters": r4(v.get(f"{_KEY}.dof", 0.0)),
         }
         if x is not None and bool((x > 0).any()):
             k = 4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR
             geo = (out["field_of_view_deg"], out["form_factor_cosines"])
-            rad, tan = _loadings(obs.scene(), pred, k, *geo)
             xs = x.reshape(-1)
+            rad, tan = _loadings(obs.scene(), pred, k, *geo, torch.arange(xs.numel()))
             ratio = torch.hypot(xs @ rad, xs @ tan) / pred.a0.detach().reshape(-1)
             known = obs.known.reshape(-1)
             out["median_relay_to_direct"] = r4(float(ratio[known].median()))
-            out["strongest_block_yx"] = [int(i) for i in np.unravel_index(int(x.argmax()), x.shape)]
+            out["strongest_source_yx"] = [
+                int(i) for i in np.unravel_index(int(x.argmax()), x.shape)
+            ]
         return out
