@@ -27,7 +27,10 @@ tangential noise of the read-out pattern's residuals. In two steps: one weight p
 ``SOURCE_BLOCK`` x ``SOURCE_BLOCK`` patches (which also profiles the geometry, the catalogue's
 fields of view with and without the cosines, when the term enters; then it is kept), then every
 patch of a relaying block on its own (a glossy patch is smaller than a block: a block's weight
-spreads its light over the block and misfits next to it). The AIC counts the positive weights
+spreads its light over the block and misfits next to it), kept only where the patches' weights
+fitted on one half of the pixels (a checkerboard of patch-sized blocks) predict the other half
+better than the blocks' weights do (a patch relays sharply next to itself and can fit a local
+misfit of the pixels it sees). The AIC counts the positive weights
 and the geometry (``values["multipath_sources.dof"]``). The report names it ``multipath``.
 """
 
@@ -148,16 +151,28 @@ def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Ten
     return lr * c + li * s, li * c - lr * s
 
 
-def _solve(ctx, direct, k, geometry, group, fit) -> tuple[float, np.ndarray]:
-    """``(gain, group weights)``: the non-negative least squares of the groups' weights on the
-    rotated residuals ``fit = (radial, tangential, their weights)``; gain = the weighted sum of
-    squares it removes, halved."""
-    ra, ta, wr, wt = fit
+def _systems(ctx, direct, k, geometry, group, fit) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The normal equations ``(G, b)`` of the groups' weights on the rotated residuals
+    ``fit = (radial, tangential, their weights, half)``, one per half of the pixels (``half``: a
+    checkerboard of source-patch-sized blocks)."""
+    ra, ta, wr, wt, half = fit
     rad, tan = _loadings(ctx.scene, direct, k, *geometry, group)
-    g = ((rad * wr) @ rad.T + (tan * wt) @ tan.T).numpy()
-    b = ((rad * wr) @ ra + (tan * wt) @ ta).numpy()
-    x = nnls(g, b)
-    return float(b @ x - 0.5 * x @ g @ x), x
+    out = []
+    for m in (half, 1.0 - half):
+        ar, at = rad * (wr * m), tan * (wt * m)
+        out.append(((ar @ rad.T + at @ tan.T).numpy(), (ar @ ra + at @ ta).numpy()))
+    return out
+
+
+def _quad(x: np.ndarray, g: np.ndarray, b: np.ndarray) -> float:
+    """The weighted sum of squares the weights ``x`` remove, halved: ``b'x - x'Gx / 2``."""
+    return float(b @ x - 0.5 * x @ g @ x)
+
+
+def _crossed(systems) -> float:
+    """The gain of the weights fitted on one half, on the other half (both ways)."""
+    (ga, ba), (gb, bb) = systems
+    return _quad(nnls(ga, ba), gb, bb) + _quad(nnls(gb, bb), ga, ba)
 
 
 def _refined(block: torch.Tensor, x: np.ndarray) -> torch.Tensor:
@@ -169,11 +184,22 @@ def _refined(block: torch.Tensor, x: np.ndarray) -> torch.Tensor:
 
 
 def _two_step(ctx, direct, k, geometry, block, fit):
-    """``((gain, weights, groups), geometry)``: the blocks' weights, then the sources of the
-    relaying blocks on their own."""
-    x = _solve(ctx, direct, k, geometry, block, fit)[1]
-    group = _refined(block, x)
-    return (*_solve(ctx, direct, k, geometry, group, fit), group), geometry
+    """``((gain, weights, groups), geometry)``: the blocks' weights, then the
+    sources of the relaying blocks on their own where that predicts the other half of the
+    pixels better (a patch's weight can fit a local misfit of the half it sees: the light it
+    relays next to itself is sharp)."""
+    sys_b = _systems(ctx, direct, k, geometry, block, fit)
+    g, b = sys_b[0][0] + sys_b[1][0], sys_b[0][1] + sys_b[1][1]
+    x = nnls(g, b)
+    best = (_quad(x, g, b), x, block)
+    if bool((x > 0).any()):
+        group = _refined(block, x)
+        sys_r = _systems(ctx, direct, k, geometry, group, fit)
+        if _crossed(sys_r) > _crossed(sys_b):
+            g, b = sys_r[0][0] + sys_r[1][0], sys_r[0][1] + sys_r[1][1]
+            x = nnls(g, b)
+            best = (_quad(x, g, b), x, group)
+    return best, geometry
 
 
 def _gain(t) -> float:
@@ -202,7 +228,10 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
         ok = ok & torch.isfinite(ra) & torch.isfinite(ta) & (va > 0) & (vt > 0)
         wr = torch.where(ok, 1.0 / va.clamp_min(1e-300), torch.zeros_like(va))
         wt = torch.where(ok, 1.0 / vt.clamp_min(1e-300), torch.zeros_like(vt))
-        fit = (torch.where(ok, ra, 0.0), torch.where(ok, ta, 0.0), wr, wt)
+        step = source_step(h, w)
+        yy, xx = torch.arange(h).view(-1, 1) // step, torch.arange(w).view(1, -1) // step
+        half = ((yy + xx) % 2 == 0).reshape(-1).to(torch.float64)
+        fit = (torch.where(ok, ra, 0.0), torch.where(ok, ta, 0.0), wr, wt, half)
         geometries = GEOMETRIES
         if _KEY in model.profiles:  # profiled once, when the term enters; then kept
             geometries = (
