@@ -213,7 +213,7 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
 
     h, w = obs.shape
     k = 4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR
-    _, ny, nx = _grid(h, w)
+    step, ny, nx = _grid(h, w)
     block = _blocks(ny, nx)
     with torch.no_grad():
         direct = predict(model.without(_KEY), obs, scene=ctx.scene)
@@ -228,7 +228,6 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
         ok = ok & torch.isfinite(ra) & torch.isfinite(ta) & (va > 0) & (vt > 0)
         wr = torch.where(ok, 1.0 / va.clamp_min(1e-300), torch.zeros_like(va))
         wt = torch.where(ok, 1.0 / vt.clamp_min(1e-300), torch.zeros_like(vt))
-        step = source_step(h, w)
         yy, xx = torch.arange(h).view(-1, 1) // step, torch.arange(w).view(1, -1) // step
         half = ((yy + xx) % 2 == 0).reshape(-1).to(torch.float64)
         fit = (torch.where(ok, ra, 0.0), torch.where(ok, ta, 0.0), wr, wt, half)
