@@ -153,8 +153,13 @@ def rank(
         # every core value is free: a current model that misfits has its noise law and FPN
         # bent to the misfit, and the term must be able to undo that
         free = [s.key for s in term.specs] + [s.key for s in CORE_SPECS]
+        # the closed-form profiles of the model (e.g. a member's weights) are updated once
+        # before the term's fit, twice (before and after) when the term is one: its profile
+        # starts from the model without it; the contenders below are fitted to the end
+        rounds = 2 if term.closed_form else 1
         fits = [
-            fit(s, obs, ctx, "train", free=free, iters=CANDIDATE_ITERS, hint=hint) for s in starts
+            fit(s, obs, ctx, "train", free=free, iters=CANDIDATE_ITERS, rounds=rounds, hint=hint)
+            for s in starts
         ]
         cand = min(fits, key=lambda t: t[1])[0]
         share = term.signature_share(obs, ctx, p_cur)

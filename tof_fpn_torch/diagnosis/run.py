@@ -238,53 +238,69 @@ def _forward(base, base_train, ranking, obs, ctx, before, start_values, only, ma
     the catalogue terms, the forms, that model each) and every round's ranking (without the
     fitted models).
 
-    One effect, one name: from the second round the other forms (flexible members) of the
-    effects already named are candidates too. A further effect is named only when its held-out
-    gain is significant and larger than the best held-out gain of those forms (a refit of the
-    named effects with more freedom); when a form of a named effect is the best significant
-    candidate it joins that effect (no new name)."""
-    rankings, effects = [], []
+    One effect, one name: after an effect is named, a round of the other forms (flexible
+    members) of the named effects comes first; the best significant one joins its effect (no
+    new name). The round of new effects that follows fits them against that refit of the named
+    effects, and names one only when its held-out gain is significant, above the forms' best in
+    that round and above the form tolerance (:func:`_one_name`)."""
+    rankings, effects, deferred = [], [], None
     current, train_model = base, base_train
-    while len(effects) < max_effects and len(rankings) < 2 * max_effects:
+    while len(effects) < max_effects and len(rankings) < 3 * max_effects:
         rankings.append([{k: v for k, v in r.items() if k != "model"} for r in ranking])
         best = next((r for r in ranking if r["significant"]), None)
-        if best is None:
+        if best is None and not deferred:
             break
-        name = best["name"]
-        nll_cur = evaluate(current, obs, ctx)
-        new, nll_new = fit(best["model"], obs, ctx)
-        daic = 2 * (new.n_parameters() - current.n_parameters()) - 2 * (nll_cur - nll_new)
-        named = next((e for e in effects if e["name"] == CATALOGUE[name].effect), None)
-        if named is not None:  # another form of a named effect: it joins it
-            named["terms"].append(name)
-        else:
-            effects.append(
-                {
-                    "name": CATALOGUE[name].effect,
-                    "terms": [name],
-                    "score": best["score"],
-                    "delta_aic": round(daic, 3),
-                    "heldout_gain": best["score"],
-                    "train_delta_aic": best["delta_aic"],
-                }
-            )
-        current = new
-        train_model = best["model"]
-        if len(effects) == max_effects:
-            break
-        ranking, train_model = rank(
-            current,
-            obs,
-            ctx,
-            only=_next_candidates(ranking, name, current, obs, ctx, before, only),
-            start_values=start_values,
-        )
+        if best is not None:
+            current, train_model = _take(best, current, effects, obs, ctx)
+            if len(effects) == max_effects:
+                break
+        if deferred is None:  # after a round of new effects: the forms of the named ones first
+            again = _next_candidates(ranking, best["name"], current, obs, ctx, before, only)
+            named = {e["name"] for e in effects}
+            forms = [n for n in again if CATALOGUE[n].effect in named]
+            deferred = [n for n in again if n not in forms]
+            if not forms:
+                candidates, deferred = deferred, None
+            else:
+                candidates = forms
+        else:  # after the forms: the new effects, against the named effects as refitted
+            candidates = [n for n in deferred if n not in current.effects]
+            candidates += [n for n in _signalled(current, obs, ctx, before) if n not in candidates]
+            candidates = [n for n in candidates if only is None or n in only]
+            named = {e["name"] for e in effects}
+            candidates = [n for n in candidates if CATALOGUE[n].effect not in named]
+            deferred = None
+        ranking, train_model = rank(current, obs, ctx, only=candidates, start_values=start_values)
         ranking = _one_name(ranking, effects)
     return current, train_model, effects, rankings
 
 
+def _take(best: dict, current, effects: list, obs, ctx):
+    """``(model, fit on the fitting half)`` with ``best``'s term added (refitted on all pixels);
+    ``effects`` gets its entry, or the named effect it is a form of gets the term."""
+    name = best["name"]
+    nll_cur = evaluate(current, obs, ctx)
+    new, nll_new = fit(best["model"], obs, ctx)
+    daic = 2 * (new.n_parameters() - current.n_parameters()) - 2 * (nll_cur - nll_new)
+    named = next((e for e in effects if e["name"] == CATALOGUE[name].effect), None)
+    if named is not None:  # another form of a named effect: it joins it
+        named["terms"].append(name)
+    else:
+        effects.append(
+            {
+                "name": CATALOGUE[name].effect,
+                "terms": [name],
+                "score": best["score"],
+                "delta_aic": round(daic, 3),
+                "heldout_gain": best["score"],
+                "train_delta_aic": best["delta_aic"],
+            }
+        )
+    return new, best["model"]
+
+
 def _next_candidates(ranking, name, current, obs, ctx, before, only) -> list[str]:
-    """The terms the next round tries: those that gained something in this one (a term that did
+    """The terms the next rounds try: those that gained something in this one (a term that did
     not help before the winner was modelled is not re-fitted), those the located statistics
     point at, and the other forms of the effects in the model."""
     again = [

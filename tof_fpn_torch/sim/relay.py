@@ -108,19 +108,17 @@ def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines=Fal
     src = (sy.view(-1, 1) * w + sx.view(1, -1)).reshape(-1)
     dp, dq = d.reshape(-1), d.reshape(-1)[src]
     area = dq * dq * (step / f_px) ** 2
-    r = torch.cdist(pts, pts[src])
-    wgt = area.view(1, -1) / (math.pi * (r * r + near_field**2))
-    if cosines:  # n_p . (Q - P) and n_q . (P - Q), as (P, Q) products (no (P, Q, 3) tensor)
+    # (Q, P): the products take the sources' phasors from the left (no transposed copies)
+    r = torch.cdist(pts[src], pts)
+    wgt = area.view(-1, 1) / (math.pi * (r * r + near_field**2))
+    if cosines:  # n_p . (Q - P) and n_q . (P - Q), as (Q, P) products (no (Q, P, 3) tensor)
         nrm = normals(pts3, d).reshape(-1, 3)
         nq = nrm[src]
-        cos_p = (nrm @ pts[src].T - (nrm * pts).sum(1, keepdim=True)).clamp_min(0)
-        cos_q = (pts @ nq.T - (nq * pts[src]).sum(1).view(1, -1)).clamp_min(0)
+        cos_p = (pts[src] @ nrm.T - (nrm * pts).sum(1).view(1, -1)).clamp_min(0)
+        cos_q = (nq @ pts.T - (nq * pts[src]).sum(1, keepdim=True)).clamp_min(0)
         wgt = wgt * cos_p * cos_q / (r * r).clamp_min(1e-18)
-    psi = 0.5 * phase_per_metre * (r + dp.view(-1, 1) - dq.view(1, -1))
-    # transposed (Q, P) for the products with the sources' phasors
-    out = tuple(
-        x.T.contiguous().float() for x in (wgt, wgt * torch.cos(psi), wgt * torch.sin(psi))
-    ) + (src,)
+    psi = 0.5 * phase_per_metre * (r + dp.view(1, -1) - dq.view(-1, 1))
+    out = tuple(x.float() for x in (wgt, wgt * torch.cos(psi), wgt * torch.sin(psi))) + (src,)
     _CACHE[key] = out
     while len(_CACHE) > 1 and sum(_nbytes(v) for v in _CACHE.values()) > CACHE_BYTES:
         _CACHE.popitem(last=False)

@@ -73,6 +73,7 @@ GEOMETRIES: tuple[tuple[float, bool], ...] = tuple(
 NNLS_ITERS: int = 1000
 _KEY = "multipath_sources"  # profiles: the source weights (SY, SX) and the (H, W) map
 _MAP = "multipath_sources_map"
+_GROUPS = "multipath_sources_groups"  # (SY, SX): the group of each source (one weight each)
 
 
 def _grid(h: int, w: int) -> tuple[int, int, int]:
@@ -138,27 +139,35 @@ def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Ten
     phi = (k * pred.mu_d.detach()).reshape(-1).to(torch.float64)
     a0 = pred.a0.detach().reshape(-1).to(torch.float64)
     xr, xi = a0[src] * torch.cos(phi[src]), a0[src] * torch.sin(phi[src])
-    onehot = torch.zeros(int(group.max()) + 1, len(src), dtype=torch.float64)
-    onehot[group, torch.arange(len(src))] = 1.0
-    # (G, P): sum_q F X_q e^{j psi}, in the relay matrices' float32 (a float64 copy of the
-    # (sources, P) matrices cost more than the products; the sums are over a few hundred terms)
-    br, bi = (onehot * xr).to(wc.dtype), (onehot * xi).to(wc.dtype)
-    lr = (br @ wc - bi @ ws).to(torch.float64)
-    li = (br @ ws + bi @ wc).to(torch.float64)
+    # (G, P): sum_q F X_q e^{j psi} over each group's sources, in the relay matrices' float32 (a
+    # float64 copy of the (sources, P) matrices cost more than the sums of a few hundred terms);
+    # as (G, Q) x (Q, P) products for a few groups, as sums of the (Q, P) rows for many
+    n, q = int(group.max()) + 1, len(src)
+    xr, xi = xr.to(wc.dtype), xi.to(wc.dtype)
+    if n <= q // 3:
+        onehot = wc.new_zeros(n, q)
+        onehot[group, torch.arange(q)] = 1.0
+        br, bi = onehot * xr, onehot * xi
+        lr, li = br @ wc - bi @ ws, br @ ws + bi @ wc
+    else:
+        xr, xi = xr.view(-1, 1), xi.view(-1, 1)
+        lr = wc.new_zeros(n, wc.shape[1]).index_add_(0, group, xr * wc - xi * ws)
+        li = wc.new_zeros(n, wc.shape[1]).index_add_(0, group, xr * ws + xi * wc)
+    lr, li = lr.to(torch.float64), li.to(torch.float64)
     rho = scene.reflectance[0, 0].reshape(1, -1).to(torch.float64)
     lr, li = lr * rho, li * rho
     c, s = torch.cos(phi).view(1, -1), torch.sin(phi).view(1, -1)
     return lr * c + li * s, li * c - lr * s
 
 
-def _systems(ctx, direct, k, geometry, group, fit) -> list[tuple[np.ndarray, np.ndarray]]:
+def _systems(ctx, direct, k, geometry, group, fit, halves: bool = True) -> list[tuple]:
     """The normal equations ``(G, b)`` of the groups' weights on the rotated residuals
     ``fit = (radial, tangential, their weights, half)``, one per half of the pixels (``half``: a
-    checkerboard of source-patch-sized blocks)."""
+    checkerboard of source-patch-sized blocks; ``halves=False``: one, of all the pixels)."""
     ra, ta, wr, wt, half = fit
     rad, tan = _loadings(ctx.scene, direct, k, *geometry, group)
     out = []
-    for m in (half, 1.0 - half):
+    for m in (half, 1.0 - half) if halves else (1.0,):
         ar, at = rad * (wr * m), tan * (wt * m)
         out.append(((ar @ rad.T + at @ tan.T).numpy(), (ar @ ra + at @ ta).numpy()))
     return out
@@ -202,6 +211,13 @@ def _two_step(ctx, direct, k, geometry, block, fit):
     return best, geometry
 
 
+def _weights(ctx, direct, k, geometry, group, fit):
+    """``(gain, weights, groups)`` of the groups ``group``, fitted on all the pixels of ``fit``."""
+    ((g, b),) = _systems(ctx, direct, k, geometry, group, fit, halves=False)
+    x = nnls(g, b)
+    return _quad(x, g, b), x, group
+
+
 def _gain(t) -> float:
     return t[0][0]
 
@@ -232,18 +248,23 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
         half = ((yy + xx) % 2 == 0).reshape(-1).to(torch.float64)
         fit = (torch.where(ok, ra, 0.0), torch.where(ok, ta, 0.0), wr, wt, half)
         geometries = GEOMETRIES
-        if _KEY in model.profiles:  # profiled once, when the term enters; then kept
+        if _KEY in model.profiles:  # the geometry is chosen when the term enters; then kept
             geometries = (
                 (model.values[f"{_KEY}.field_of_view"], bool(model.values[f"{_KEY}.cosines"])),
             )
-        # per geometry, one weight per block, then the relaying blocks' sources freed one by
-        # one (a small glossy patch is finer than a block); the geometry that gains most
-        best = max((_two_step(ctx, direct, k, geo, block, fit) for geo in geometries), key=_gain)
+        if _GROUPS in model.profiles:  # and so are the groups: their weights refitted
+            group = model.profiles[_GROUPS].reshape(-1).long()
+            best = (_weights(ctx, direct, k, geometries[0], group, fit), geometries[0])
+        else:
+            # per geometry, one weight per block, then the relaying blocks' sources freed one by
+            # one (a small glossy patch is finer than a block); the geometry that gains most
+            best = max((_two_step(ctx, direct, k, g, block, fit) for g in geometries), key=_gain)
     (_, x, group), (fov, cosines) = best
     out = model.copy()
     weights = torch.from_numpy(x)[group].view(ny, nx)
     out.profiles[_KEY] = weights
     out.profiles[_MAP] = source_map(weights, h, w)
+    out.profiles[_GROUPS] = group.view(ny, nx).to(torch.float64)
     out.values[f"{_KEY}.field_of_view"] = fov
     out.values[f"{_KEY}.cosines"] = float(cosines)
     out.values[f"{_KEY}.dof"] = float((x > 0).sum()) + 2.0
@@ -262,7 +283,7 @@ class MultipathSourcesTerm(Term):
     about = "a second bounce from free sources: each surface patch relays its own share of light"
     closed_form = True
     slow = True
-    profile_keys = (_KEY, _MAP)
+    profile_keys = (_KEY, _MAP, _GROUPS)
 
     def simulator_term(self, v: dict, model):
         return Multipath(
