@@ -130,9 +130,49 @@ def test_one_effect_one_name():
         "multipath": False,
     }
     assert also_consistent(effects, [out]) == ["vignetting", "pixel_gain"]
-    # without a form of the named effect in the ranking nothing is held back
+    # without a form of the named effect in the ranking nothing is held back ...
     out = _one_name([dict(r) for r in ranking[1:]], effects)
     assert [r["significant"] for r in out] == [True, True, False]
+    # ... unless the forms, ranked alone the round before, gained more (``bar``)
+    out = _one_name([dict(r) for r in ranking[1:]], effects, bar=60.0)
+    assert [r["significant"] for r in out] == [False, True, False]
+
+
+def test_forms_of_a_named_effect_are_ranked_before_new_effects(monkeypatch):
+    """After a new name the next round fits the named effect's other forms alone; one that is
+    significant joins the effect, and only then are the new effects ranked, against it."""
+    from tof_fpn_torch.diagnosis import run
+
+    class Model(SimpleNamespace):
+        def n_parameters(self):
+            return len(self.effects)
+
+    rounds = []
+
+    def rank(model, obs, ctx, only=None, start_values=None):
+        rounds.append((list(only), list(model.effects)))
+        if len(rounds) == 1:  # the forms: the member gains significantly
+            joined = Model(effects=model.effects + ["multipath_sources"])
+            return [dict(_r("multipath_sources", 50.0), model=joined)], joined
+        return [dict(_r(n, 1.0, sig=False), model=None) for n in only], model
+
+    monkeypatch.setattr(run, "rank", rank)
+    monkeypatch.setattr(run, "fit", lambda m, *a, **k: (m, 0.0))
+    monkeypatch.setattr(run, "evaluate", lambda *a, **k: 0.0)
+    monkeypatch.setattr(run, "_signalled", lambda *a, **k: [])
+    first = [
+        dict(_r("multipath", 1000.0), model=Model(effects=["multipath"]), delta_aic=-1990.0),
+        dict(_r("vignetting", 600.0), model=None),
+        dict(_r("pixel_gain", 5.0, sig=False), model=None),
+    ]
+    base = Model(effects=[])
+    model, _, effects, rankings = run._forward(base, base, first, None, None, {}, None, None, 3)
+    assert rounds[0] == (["multipath_sources"], ["multipath"])  # the forms alone, first
+    assert rounds[1] == (["vignetting", "pixel_gain"], ["multipath", "multipath_sources"])
+    assert [(e["name"], e["terms"]) for e in effects] == [
+        ("multipath", ["multipath", "multipath_sources"])
+    ]
+    assert model.effects == ["multipath", "multipath_sources"] and len(rankings) == 3
 
 
 def test_range_series_delays_the_decoded_phase():

@@ -241,9 +241,9 @@ def _forward(base, base_train, ranking, obs, ctx, before, start_values, only, ma
     One effect, one name: after an effect is named, a round of the other forms (flexible
     members) of the named effects comes first; the best significant one joins its effect (no
     new name). The round of new effects that follows fits them against that refit of the named
-    effects, and names one only when its held-out gain is significant, above the forms' best in
-    that round and above the form tolerance (:func:`_one_name`)."""
-    rankings, effects, deferred = [], [], None
+    effects, and names one only when its held-out gain is significant, above the form
+    tolerance and, where no form joined, above the forms' best gain (:func:`_one_name`)."""
+    rankings, effects, deferred, bar = [], [], None, -math.inf
     current, train_model = base, base_train
     while len(effects) < max_effects and len(rankings) < 3 * max_effects:
         rankings.append([{k: v for k, v in r.items() if k != "model"} for r in ranking])
@@ -263,7 +263,9 @@ def _forward(base, base_train, ranking, obs, ctx, before, start_values, only, ma
                 candidates, deferred = deferred, None
             else:
                 candidates = forms
-        else:  # after the forms: the new effects, against the named effects as refitted
+        else:  # after the forms: the new effects, against the named effects as refitted (if
+            # no form joined, a new effect must gain more than the best of them did)
+            bar = -math.inf if best is not None else _best_score(ranking)
             candidates = [n for n in deferred if n not in current.effects]
             candidates += [n for n in _signalled(current, obs, ctx, before) if n not in candidates]
             candidates = [n for n in candidates if only is None or n in only]
@@ -271,7 +273,8 @@ def _forward(base, base_train, ranking, obs, ctx, before, start_values, only, ma
             candidates = [n for n in candidates if CATALOGUE[n].effect not in named]
             deferred = None
         ranking, train_model = rank(current, obs, ctx, only=candidates, start_values=start_values)
-        ranking = _one_name(ranking, effects)
+        ranking = _one_name(ranking, effects, bar)
+        bar = -math.inf
     return current, train_model, effects, rankings
 
 
@@ -320,14 +323,19 @@ def _next_candidates(ranking, name, current, obs, ctx, before, only) -> list[str
     return again
 
 
-def _one_name(ranking: list, effects: list) -> list:
+def _best_score(ranking: list) -> float:
+    return max([r["score"] for r in ranking if r["score"] is not None], default=-math.inf)
+
+
+def _one_name(ranking: list, effects: list, bar: float = -math.inf) -> list:
     """The ranking with a new effect's candidates significant only when they gain more than
-    every form of the effects already named (which are ranked as they are) and at least
+    every form of the effects already named (which are ranked as they are) and than ``bar``
+    (the forms' best gain in the round before, where they were ranked alone), and at least
     :data:`FORM_TOLERANCE` of the largest named effect's held-out gain (what a misfit of its
     form could leave)."""
     named = {e["name"] for e in effects}
     forms = [r["score"] for r in ranking if CATALOGUE[r["name"]].effect in named]
-    bar = max([s for s in forms if s is not None], default=-math.inf)
+    bar = max([s for s in forms if s is not None] + [bar])
     gains = [e["heldout_gain"] for e in effects if e.get("heldout_gain") is not None]
     leftover = FORM_TOLERANCE * max(gains, default=0.0)
     for r in ranking:
