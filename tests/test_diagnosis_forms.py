@@ -111,7 +111,7 @@ def _r(name, score, sig=True):
 def test_one_effect_one_name():
     """From the second round a new effect is significant only when it gains more than every form
     of the effects already named; what it would have been is listed as consistent."""
-    from tof_fpn_torch.diagnosis.run import _one_name
+    from tof_fpn_torch.diagnosis.rounds import _one_name
     from tof_fpn_torch.diagnosis.summary import also_consistent
 
     effects = [{"name": "amplitude_bias", "terms": ["amplitude_bias"]}]
@@ -141,7 +141,7 @@ def test_one_effect_one_name():
 def test_forms_of_a_named_effect_are_ranked_before_new_effects(monkeypatch):
     """After a new name the next round fits the named effect's other forms alone; one that is
     significant joins the effect, and only then are the new effects ranked, against it."""
-    from tof_fpn_torch.diagnosis import run
+    from tof_fpn_torch.diagnosis import rounds as run
 
     class Model(SimpleNamespace):
         def n_parameters(self):
@@ -160,13 +160,14 @@ def test_forms_of_a_named_effect_are_ranked_before_new_effects(monkeypatch):
     monkeypatch.setattr(run, "fit", lambda m, *a, **k: (m, 0.0))
     monkeypatch.setattr(run, "evaluate", lambda *a, **k: 0.0)
     monkeypatch.setattr(run, "_signalled", lambda *a, **k: [])
+    monkeypatch.setattr(run, "misfits_grossly", lambda *a, **k: False)
     first = [
         dict(_r("multipath", 1000.0), model=Model(effects=["multipath"]), delta_aic=-1990.0),
         dict(_r("vignetting", 600.0), model=None),
         dict(_r("pixel_gain", 5.0, sig=False), model=None),
     ]
     base = Model(effects=[])
-    model, _, effects, rankings = run._forward(base, base, first, None, None, {}, None, None, 3)
+    model, _, effects, rankings = run.forward(base, base, first, None, None, {}, None, None, 3)
     assert rounds[0] == (["multipath_sources"], ["multipath"])  # the forms alone, first
     assert rounds[1] == (["vignetting", "pixel_gain"], ["multipath", "multipath_sources"])
     assert [(e["name"], e["terms"]) for e in effects] == [
@@ -232,7 +233,7 @@ def test_a_further_effect_must_exceed_the_form_tolerance():
     back (a misfit of the named form can leave that much) and listed as consistent; above it,
     and above the named effect's other forms, it is named."""
     from tof_fpn_torch.diagnosis.naming import FORM_TOLERANCE
-    from tof_fpn_torch.diagnosis.run import _one_name
+    from tof_fpn_torch.diagnosis.rounds import _one_name
     from tof_fpn_torch.diagnosis.summary import also_consistent
 
     effects = [{"name": "temporal_drift", "terms": ["temporal_drift"], "heldout_gain": 5000.0}]

@@ -1,6 +1,6 @@
 """Which effect is named first (issue 10), and the benchmark generator's cyclic-error waveform.
 
-``_prune`` is backward elimination over the terms the forward rounds added: a term whose removal
+``prune`` is backward elimination over the terms the forward rounds added: a term whose removal
 costs less than ``naming.MIN_DAIC`` is dropped, and the rest are ordered by what their removal
 costs. Tested with stand-in models whose NLL is a table over the set of terms (no fitting), so
 the ordering rule itself is checked, including the case the forward rounds get wrong: a stand-in
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tof_fpn_torch.diagnosis import run as R
+from tof_fpn_torch.diagnosis import rounds as R
 from tof_fpn_torch.diagnosis.naming import MIN_DAIC
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,7 +56,7 @@ def test_the_term_no_other_explains_is_named_first(monkeypatch):
         },
     )
     model = _Stub(["amplitude_bias", "cyclic_error"])
-    out, effects = R._prune(model, _effects("amplitude_bias", "cyclic_error"), None, None)
+    out, effects = R.prune(model, _effects("amplitude_bias", "cyclic_error"), None, None)
     assert [e["name"] for e in effects] == ["cyclic_error", "amplitude_bias"]
     # drop costs: 2 * (-1) + 2 * (nll without - nll with)
     assert effects[0]["drop_delta_aic"] == pytest.approx(-2 + 2 * (1000.0 - 400.0))
@@ -81,9 +81,7 @@ def test_a_term_made_redundant_is_dropped_and_the_rest_ordered(monkeypatch):
         },
     )
     model = _Stub(["fpn_pattern", "cyclic_error", "vignetting"])
-    out, effects = R._prune(
-        model, _effects("fpn_pattern", "cyclic_error", "vignetting"), None, None
-    )
+    out, effects = R.prune(model, _effects("fpn_pattern", "cyclic_error", "vignetting"), None, None)
     assert [e["name"] for e in effects] == ["vignetting", "cyclic_error"]
     assert sorted(out.effects) == ["cyclic_error", "vignetting"]
 
@@ -97,7 +95,7 @@ def test_every_term_needed_keeps_the_forward_order_when_it_is_right(monkeypatch)
             frozenset({"b"}): 500.0,
         },
     )
-    _, effects = R._prune(_Stub(["a", "b"]), _effects("a", "b"), None, None)
+    _, effects = R.prune(_Stub(["a", "b"]), _effects("a", "b"), None, None)
     assert [e["name"] for e in effects] == ["a", "b"]
 
 

@@ -331,3 +331,22 @@ def test_hessian_hint_fills_the_known_block():
     _, h0 = _hessian(objective, u0, wrong)
     assert torch.allclose(h0[[1, 4]][:, [1, 4]], a[[1, 4]][:, [1, 4]], atol=1e-6)
     assert float(h0[0, 0]) == 0.0
+
+
+@pytest.mark.parametrize("all_valid", [True, False])
+def test_pixel_stats_match_numpy(all_valid):
+    """Count, mean and sum of squared deviations over the valid frames of each pixel, against
+    NumPy's masked mean and variance (both paths: every frame valid, and some not)."""
+    import numpy as np
+
+    from tof_fpn_torch.diagnosis.data import pixel_stats
+
+    g = torch.Generator().manual_seed(5)
+    x = torch.randn(9, 6, 7, dtype=torch.float64, generator=g) * 3 + 1
+    valid = torch.rand(9, 6, 7, generator=g) > (0.0 if all_valid else 0.3)
+    valid[0] = True  # every pixel has a frame
+    n, m, m2 = pixel_stats(x, valid)
+    xm = np.ma.masked_array(x.numpy(), mask=~valid.numpy())
+    np.testing.assert_array_equal(n.numpy(), valid.sum(0).numpy())
+    np.testing.assert_allclose(m.numpy(), xm.mean(0).filled(), rtol=1e-12)
+    np.testing.assert_allclose(m2.numpy(), (xm.var(0) * valid.sum(0).numpy()).filled(), rtol=1e-10)

@@ -211,3 +211,44 @@ def test_relay_cache_is_bounded_in_bytes(monkeypatch):
     relay.relay_matrix(depth, 60.0, 0.3, 2, 0.84)
     assert len(relay._CACHE) == 1 and next(iter(relay._CACHE))[2] == 60.0
     relay._CACHE.clear()
+
+
+def test_relay_matrices_built_by_threads_at_once(monkeypatch):
+    """Threads build different geometries at once (not one after another under one lock) and
+    one that asks for a matrix another is building waits for it: each built once, every thread
+    gets the same tensors, the same as a build alone."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tof_fpn_torch.sim import relay
+
+    depth = 1.0 + torch.rand(12, 16, generator=torch.Generator().manual_seed(1))
+    relay._CACHE.clear()
+    builds, running, overlap = [], [0], [0]
+    lock = threading.Lock()
+    build = relay._relay_matrix
+
+    def slow_build(*args):
+        with lock:
+            running[0] += 1
+            overlap[0] = max(overlap[0], running[0])
+        builds.append(args[1])
+        time.sleep(0.2)  # long enough for the other threads to ask meanwhile
+        out = build(*args)
+        with lock:
+            running[0] -= 1
+        return out
+
+    monkeypatch.setattr(relay, "_relay_matrix", slow_build)
+    fovs = [50.0, 70.0] * 3
+    with ThreadPoolExecutor(max_workers=6) as ex:
+        got = list(ex.map(lambda f: relay.relay_matrix(depth, f, 0.3, 2, 0.84), fovs))
+    assert sorted(builds) == [50.0, 70.0]  # each geometry built once
+    assert overlap[0] == 2  # the two at the same time
+    for f, out in zip(fovs, got, strict=True):
+        assert out is got[fovs.index(f)]
+        alone = build(depth.to(torch.float64), f, 0.3, 2, 0.84)
+        assert all(torch.equal(a, b) for a, b in zip(out, alone, strict=True))
+    assert not relay._BUILDING
+    relay._CACHE.clear()

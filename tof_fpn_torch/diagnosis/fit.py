@@ -28,6 +28,7 @@ __all__ = [
     "fit",
     "hessian",
     "init_model",
+    "misfits_grossly",
     "robust_start",
 ]
 
@@ -348,28 +349,39 @@ def robust_start(model: DiagnosisModel, obs: Observations, ctx: Context, base: D
     refitted (from ``model``'s robust starting values) on the pixels whose temporal mean and
     spread are within ``INLIER_Z`` sigma of the fitted ``base``, twice. Returns ``(values,
     model)``; ``(None, None)`` when fewer than 1 % of the depth pixels are outside (nothing to
-    protect from)."""
+    protect from: :func:`misfits_grossly`)."""
     from dataclasses import replace as _replace
 
-    from .locate import channels
-
-    def inliers(m):
-        with torch.no_grad():
-            ch = channels(obs, predict(m, obs, scene=ctx.scene), ctx)
-        ok = torch.ones_like(ctx.mask_d)
-        for z, _, mask in ch.values():
-            ok &= ~mask | (z.abs() < INLIER_Z)
-        return ok
-
-    ok = inliers(base)
-    if float((~ok & ctx.mask_d).sum()) < 0.01 * float(ctx.mask_d.sum()):
+    ok = _inliers(base, obs, ctx)
+    if not _gross(ok, ctx):
         return None, None
     cur = model
     for _ in range(2):
         sub = _replace(ctx, mask_d=ctx.mask_d & ok, mask_a=ctx.mask_a & ok, _frames={})
         cur, _ = fit(cur, obs, sub)
-        ok = inliers(cur)
+        ok = _inliers(cur, obs, ctx)
     return cur.values, cur
+
+
+def misfits_grossly(model: DiagnosisModel, obs: Observations, ctx: Context) -> bool:
+    """Whether at least 1 % of the depth pixels have a temporal mean or spread more than
+    ``INLIER_Z`` sigma from ``model``'s (the robust starting values are worth a try)."""
+    return _gross(_inliers(model, obs, ctx), ctx)
+
+
+def _gross(ok: torch.Tensor, ctx: Context) -> bool:
+    return float((~ok & ctx.mask_d).sum()) >= 0.01 * float(ctx.mask_d.sum())
+
+
+def _inliers(model: DiagnosisModel, obs: Observations, ctx: Context) -> torch.Tensor:
+    from .locate import channels
+
+    with torch.no_grad():
+        ch = channels(obs, predict(model, obs, scene=ctx.scene), ctx)
+    ok = torch.ones_like(ctx.mask_d)
+    for z, _, mask in ch.values():
+        ok &= ~mask | (z.abs() < INLIER_Z)
+    return ok
 
 
 def evaluate(model: DiagnosisModel, obs: Observations, ctx: Context, sel: str = "all") -> float:

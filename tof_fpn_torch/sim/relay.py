@@ -42,6 +42,7 @@ CACHE_BYTES: int = 1 << 30
 
 _CACHE: OrderedDict = OrderedDict()
 _LOCK = threading.Lock()  # the diagnosis fits candidates in threads
+_BUILDING: dict = {}  # key -> Event, set when the thread building that matrix is done
 
 
 def relay_matrix(
@@ -55,9 +56,36 @@ def relay_matrix(
     """``(W, W cos psi, W sin psi, source index (Q,))`` for one (H, W) depth map (m), each (Q, P):
     the form factors ``W = A_q / (pi (r^2 + L^2))`` (times both obliquities with ``cosines``)
     and ``psi`` the phase of the extra path. Cached for the last few (scene, settings);
-    thread-safe."""
+    thread-safe: threads build different matrices at once, one waits for another building the
+    same."""
+    d64 = depth.detach().to(torch.float64)
+    ramp = torch.arange(d64.numel(), dtype=torch.float64).view(d64.shape)
+    # the scene by content (a freed tensor's address may come back with other values)
+    content = (float(d64.sum()), float((d64 * ramp).sum()), float((d64 * d64).sum()))
+    key = (tuple(depth.shape), content, fov_deg, near_field, step, phase_per_metre, cosines)
     with _LOCK:
-        return _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines)
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key]
+        building = _BUILDING.get(key)
+        if building is None:
+            _BUILDING[key] = threading.Event()
+    if building is not None:  # another thread builds it
+        building.wait()
+        with _LOCK:
+            if key in _CACHE:
+                return _CACHE[key]
+        return relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines)
+    try:
+        out = _relay_matrix(d64, fov_deg, near_field, step, phase_per_metre, cosines)
+        with _LOCK:
+            _CACHE[key] = out
+            while len(_CACHE) > 1 and sum(_nbytes(v) for v in _CACHE.values()) > CACHE_BYTES:
+                _CACHE.popitem(last=False)
+    finally:
+        with _LOCK:
+            _BUILDING.pop(key).set()
+    return out
 
 
 def _nbytes(entry) -> int:
@@ -86,16 +114,8 @@ def normals(points: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
     return torch.where(((n * points).sum(-1) > 0).unsqueeze(-1), -n, n)
 
 
-def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines=False):
-    d64 = depth.detach().to(torch.float64)
-    ramp = torch.arange(d64.numel(), dtype=torch.float64).view(d64.shape)
-    # the scene by content (a freed tensor's address may come back with other values)
-    content = (float(d64.sum()), float((d64 * ramp).sum()), float((d64 * d64).sum()))
-    key = (tuple(depth.shape), content, fov_deg, near_field, step, phase_per_metre, cosines)
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
-    h, w = depth.shape
+def _relay_matrix(d64, fov_deg, near_field, step, phase_per_metre, cosines=False):
+    h, w = d64.shape
     d = d64
     f_px = (w / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
     yy = (torch.arange(h, dtype=torch.float64).view(h, 1) - (h - 1) / 2.0).expand(h, w)
@@ -109,20 +129,25 @@ def _relay_matrix(depth, fov_deg, near_field, step, phase_per_metre, cosines=Fal
     dp, dq = d.reshape(-1), d.reshape(-1)[src]
     area = dq * dq * (step / f_px) ** 2
     # (Q, P): the products take the sources' phasors from the left (no transposed copies)
+    # (in place where a (Q, P) temporary is not needed again: the passes over the matrices are
+    # most of the time)
     r = torch.cdist(pts[src], pts)
-    wgt = area.view(-1, 1) / (math.pi * (r * r + near_field**2))
+    r2 = r * r
+    wgt = (r2 + near_field**2).mul_(math.pi).reciprocal_().mul_(area.view(-1, 1))
     if cosines:  # n_p . (Q - P) and n_q . (P - Q), as (Q, P) products (no (Q, P, 3) tensor)
         nrm = normals(pts3, d).reshape(-1, 3)
         nq = nrm[src]
-        cos_p = (pts[src] @ nrm.T - (nrm * pts).sum(1).view(1, -1)).clamp_min(0)
-        cos_q = (nq @ pts.T - (nq * pts[src]).sum(1, keepdim=True)).clamp_min(0)
-        wgt = wgt * cos_p * cos_q / (r * r).clamp_min(1e-18)
-    psi = 0.5 * phase_per_metre * (r + dp.view(1, -1) - dq.view(-1, 1))
-    out = tuple(x.float() for x in (wgt, wgt * torch.cos(psi), wgt * torch.sin(psi))) + (src,)
-    _CACHE[key] = out
-    while len(_CACHE) > 1 and sum(_nbytes(v) for v in _CACHE.values()) > CACHE_BYTES:
-        _CACHE.popitem(last=False)
-    return out
+        cos_p = (pts[src] @ nrm.T).sub_((nrm * pts).sum(1).view(1, -1)).clamp_min_(0)
+        wgt.mul_(cos_p)
+        del cos_p
+        cos_q = (nq @ pts.T).sub_((nq * pts[src]).sum(1, keepdim=True)).clamp_min_(0)
+        wgt.mul_(cos_q).div_(r2.clamp_min_(1e-18))
+        del cos_q
+    del r2
+    psi = r.add_(dp.view(1, -1)).sub_(dq.view(-1, 1)).mul_(0.5 * phase_per_metre)
+    wc = torch.cos(psi).mul_(wgt).float()
+    ws = psi.sin_().mul_(wgt).float()
+    return wgt.float(), wc, ws, src
 
 
 def scene_relay(

@@ -30,7 +30,10 @@ patch of a relaying block on its own (a glossy patch is smaller than a block: a 
 spreads its light over the block and misfits next to it), kept only where the patches' weights
 fitted on one half of the pixels (a checkerboard of patch-sized blocks) predict the other half
 better than the blocks' weights do (a patch relays sharply next to itself and can fit a local
-misfit of the pixels it sees). The AIC counts the positive weights
+misfit of the pixels it sees). The geometry and the groups are chosen when the term enters
+the model (its first update); the later updates refit the groups' weights only (one system of
+all the pixels: the check on halves and six geometries cost most of a diagnosis's time at
+204 x 204 when they ran in every candidate's fit). The AIC counts the positive weights
 and the geometry (``values["multipath_sources.dof"]``). The report names it ``multipath``.
 """
 
@@ -128,10 +131,11 @@ def nnls(g: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
-def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Tensor):
+def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Tensor, cols=None):
     """Radial and tangential loadings (G, P) on ``pred``'s phasors (DN per unit weight) of the
     weights of the source groups ``group`` (the group of every source, 0 .. G - 1), for the
-    ``scene``'s geometry."""
+    ``scene``'s geometry; ``cols``: the pixels (flat indices) to compute them for (default
+    all)."""
     depth = scene.depth[0, 0]
     h, w = depth.shape
     step = source_step(h, w)
@@ -139,6 +143,9 @@ def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Ten
     phi = (k * pred.mu_d.detach()).reshape(-1).to(torch.float64)
     a0 = pred.a0.detach().reshape(-1).to(torch.float64)
     xr, xi = a0[src] * torch.cos(phi[src]), a0[src] * torch.sin(phi[src])
+    rho = scene.reflectance[0, 0].reshape(1, -1).to(torch.float64)
+    if cols is not None:
+        wc, ws, phi, rho = wc[:, cols], ws[:, cols], phi[cols], rho[:, cols]
     # (G, P): sum_q F X_q e^{j psi} over each group's sources, in the relay matrices' float32 (a
     # float64 copy of the (sources, P) matrices cost more than the sums of a few hundred terms);
     # as (G, Q) x (Q, P) products for a few groups, as sums of the (Q, P) rows for many
@@ -153,9 +160,7 @@ def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Ten
         xr, xi = xr.view(-1, 1), xi.view(-1, 1)
         lr = wc.new_zeros(n, wc.shape[1]).index_add_(0, group, xr * wc - xi * ws)
         li = wc.new_zeros(n, wc.shape[1]).index_add_(0, group, xr * ws + xi * wc)
-    lr, li = lr.to(torch.float64), li.to(torch.float64)
-    rho = scene.reflectance[0, 0].reshape(1, -1).to(torch.float64)
-    lr, li = lr * rho, li * rho
+    lr, li = lr.to(torch.float64) * rho, li.to(torch.float64) * rho
     c, s = torch.cos(phi).view(1, -1), torch.sin(phi).view(1, -1)
     return lr * c + li * s, li * c - lr * s
 
@@ -165,11 +170,16 @@ def _systems(ctx, direct, k, geometry, group, fit, halves: bool = True) -> list[
     ``fit = (radial, tangential, their weights, half)``, one per half of the pixels (``half``: a
     checkerboard of source-patch-sized blocks; ``halves=False``: one, of all the pixels)."""
     ra, ta, wr, wt, half = fit
-    rad, tan = _loadings(ctx.scene, direct, k, *geometry, group)
+    # only the pixels that weigh (the others add nothing to the sums): the fitting half of a
+    # candidate's fit is half of them, a half of the checkerboard half of those
+    cols = torch.nonzero((wr > 0) | (wt > 0)).view(-1)
+    rad, tan = _loadings(ctx.scene, direct, k, *geometry, group, cols)
+    ra, ta, wr, wt, half = (x[cols] for x in fit)
     out = []
-    for m in (half, 1.0 - half) if halves else (1.0,):
-        ar, at = rad * (wr * m), tan * (wt * m)
-        out.append(((ar @ rad.T + at @ tan.T).numpy(), (ar @ ra + at @ ta).numpy()))
+    for m in (half > 0, half == 0) if halves else (torch.ones_like(half, dtype=torch.bool),):
+        r, t = rad[:, m], tan[:, m]
+        ar, at = r * wr[m], t * wt[m]
+        out.append(((ar @ r.T + at @ t.T).numpy(), (ar @ ra[m] + at @ ta[m]).numpy()))
     return out
 
 
