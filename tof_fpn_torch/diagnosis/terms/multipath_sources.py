@@ -30,10 +30,12 @@ patch of a relaying block on its own (a glossy patch is smaller than a block: a 
 spreads its light over the block and misfits next to it), kept only where the patches' weights
 fitted on one half of the pixels (a checkerboard of patch-sized blocks) predict the other half
 better than the blocks' weights do (a patch relays sharply next to itself and can fit a local
-misfit of the pixels it sees). The geometry and the groups are chosen when the term enters
-the model (its first update); the later updates refit the groups' weights only (one system of
-all the pixels: the check on halves and six geometries cost most of a diagnosis's time at
-204 x 204 when they ran in every candidate's fit). The AIC counts the positive weights
+misfit of the pixels it sees). The geometry is chosen when the term enters the model (its
+first update) and kept; the groups are chosen again in every fit of all the pixels (the model's
+own) and kept in the fits on the fitting half (the candidates' fits of a ranking, which refit
+the groups' weights only: the check on halves and the six geometries cost most of a
+diagnosis's time at 204 x 204 when they ran in every candidate's fit). The AIC counts the
+positive weights
 and the geometry (``values["multipath_sources.dof"]``). The report names it ``multipath``.
 """
 
@@ -262,7 +264,7 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
             geometries = (
                 (model.values[f"{_KEY}.field_of_view"], bool(model.values[f"{_KEY}.cosines"])),
             )
-        if _GROUPS in model.profiles:  # and so are the groups: their weights refitted
+        if _GROUPS in model.profiles and sel == "train":  # a candidate's fit: groups kept
             group = model.profiles[_GROUPS].reshape(-1).long()
             best = (_weights(ctx, direct, k, geometries[0], group, fit), geometries[0])
         else:
