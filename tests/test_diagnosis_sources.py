@@ -66,16 +66,19 @@ def test_sources_of_one_relaying_patch_are_found_one_by_one():
     assert float(wts[sy, sx]) > 0.6 * float(block.sum())
     assert float(wts[sy, sx]) > 0.6 * float(wts.sum())
     assert model.values["multipath_sources.cosines"] == 0.0
-    # once in the model its groups are kept and only their weights refitted: with every source
-    # in one group, one weight
+    # in a candidate's fit (the fitting half) its groups are kept and only their weights
+    # refitted: with every source in one group, one weight; a fit of all the pixels chooses
+    # them again
     one = model.copy()
     one.profiles["multipath_sources_groups"] = torch.zeros(ny, nx, dtype=torch.float64)
     with torch.no_grad():
         pred = predict(one, obs, scene=ctx.scene)
-    again = update_sources(one, obs, ctx, pred)
+    again = update_sources(one, obs, ctx, pred, "train")
     w1 = again.profiles["multipath_sources"]
     assert float(w1.max()) > 0 and torch.equal(w1, torch.full_like(w1, float(w1[0, 0])))
     assert again.values["multipath_sources.dof"] == 3.0  # one weight and the geometry
+    chosen = update_sources(one, obs, ctx, pred, "all").profiles["multipath_sources"]
+    assert int(chosen.argmax()) == sy * nx + sx and float(chosen.max()) > 0.6 * float(chosen.sum())
 
 
 def test_a_hint_that_no_longer_preconditions_is_replaced():
