@@ -350,3 +350,47 @@ def test_pixel_stats_match_numpy(all_valid):
     np.testing.assert_array_equal(n.numpy(), valid.sum(0).numpy())
     np.testing.assert_allclose(m.numpy(), xm.mean(0).filled(), rtol=1e-12)
     np.testing.assert_allclose(m2.numpy(), (xm.var(0) * valid.sum(0).numpy()).filled(), rtol=1e-10)
+
+
+def test_edge_mixture_folds_the_depth_as_the_pooled_likelihood_does():
+    """With a stated shorter range (phase wrapping) the far side of an edge reads its depth
+    folded; the edge pixels' mixture must start from the same folded residual as their pooled
+    NLL (its cost at share 0 is that NLL). Data that are exactly the unmixed prediction: the
+    mixture changes the NLL by about its probability, not by a huge negative amount (a residual
+    folded by the camera's range only there made it fall without bound as the noise shrank)."""
+    from types import SimpleNamespace
+
+    from tof_fpn_torch.diagnosis.likelihood import _edge_mixture
+
+    h, w, n, wrap = 6, 8, 24.0, 2.0
+    f64 = torch.float64
+    depth = torch.full((h, w), 1.0, dtype=f64)
+    depth[:, w // 2 :] = 2.5  # beyond the stated range: reads 0.5
+    full = torch.ones(h, w, dtype=torch.bool)
+    sd_d, sd_a, amp = 1e-4, 1.0, 100.0
+
+    def const(v):
+        return torch.full((h, w), v, dtype=f64)
+
+    obs = SimpleNamespace(
+        scene_depth=depth,
+        n=const(n),
+        m_d=torch.remainder(depth, wrap),
+        m2_d=const((n - 1) * sd_d**2),
+        m_a=const(amp),
+        m2_a=const((n - 1) * sd_a**2),
+    )
+    ctx = SimpleNamespace(_frames={}, mask_d=full, mask_a=full, select=lambda sel: full)
+    pred = SimpleNamespace(
+        mu_d=depth,
+        a0=const(amp),
+        mu_a=const(amp),
+        sd_d=const(sd_d),
+        sd_a=const(sd_a),
+        tau_d=0.0,
+        tau_a=0.0,
+        s=const(1.0),
+        wrap=wrap,
+    )
+    change = float(_edge_mixture(obs, ctx, pred, 1e-6, "all", 20e6))
+    assert abs(change) < 1e-3, change

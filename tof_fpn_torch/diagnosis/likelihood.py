@@ -216,7 +216,11 @@ def _edge_mixture(obs: Observations, ctx: Context, pred, prob, sel: str, freq: f
     sp2, sq2 = at(pred.s, idx) ** 2, at(pred.s, q) ** 2
     md, ma, mu_a = at(obs.m_d, idx), at(obs.m_a, idx), at(pred.mu_a, idx)
     m2d, m2a = at(obs.m2_d, idx), at(obs.m2_a, idx)
-    r_cam = 2 * math.pi / k
+    # the decoder folds the phase into the range: the camera's, or the shorter one the model
+    # states (``pred.wrap``, phase wrapping), by which the pooled NLL folds the residual too (at
+    # s = 0 this cost must be that pixel's pooled NLL: a residual folded only there made the
+    # edge term lower without bound as the depth noise shrank)
+    r_cam = at(pred.wrap, idx) if pred.wrap is not None else 2 * math.pi / k
     sd_max = r_cam / math.sqrt(12.0)  # a phase uniform over the range
 
     def gauss(r, var, vm, m2):  # the NLL of a pixel's mean and spread (no constants)
