@@ -390,7 +390,7 @@ def test_edge_mixture_folds_the_depth_as_the_pooled_likelihood_does():
         tau_d=0.0,
         tau_a=0.0,
         s=const(1.0),
-        wrap=wrap,
+        wrap=torch.tensor([wrap], dtype=f64),  # as a fitted value is
     )
     change = float(_edge_mixture(obs, ctx, pred, 1e-6, "all", 20e6))
     assert abs(change) < 1e-3, change

@@ -220,7 +220,9 @@ def _edge_mixture(obs: Observations, ctx: Context, pred, prob, sel: str, freq: f
     # states (``pred.wrap``, phase wrapping), by which the pooled NLL folds the residual too (at
     # s = 0 this cost must be that pixel's pooled NLL: a residual folded only there made the
     # edge term lower without bound as the depth noise shrank)
-    r_cam = at(pred.wrap, idx) if pred.wrap is not None else 2 * math.pi / k
+    r_cam = 2 * math.pi / k
+    if pred.wrap is not None:
+        r_cam = pred.wrap.reshape(()) if isinstance(pred.wrap, torch.Tensor) else pred.wrap
     sd_max = r_cam / math.sqrt(12.0)  # a phase uniform over the range
 
     def gauss(r, var, vm, m2):  # the NLL of a pixel's mean and spread (no constants)
