@@ -35,8 +35,8 @@ first update) and kept; the groups are chosen again in every fit of all the pixe
 own) and kept in the fits on the fitting half (the candidates' fits of a ranking, which refit
 the groups' weights only: the check on halves and the six geometries cost most of a
 diagnosis's time at 204 x 204 when they ran in every candidate's fit). The AIC counts the
-positive weights
-and the geometry (``values["multipath_sources.dof"]``). The report names it ``multipath``.
+positive weights and the geometry (``values["multipath_sources.dof"]``). The report names it
+``multipath``.
 """
 
 from __future__ import annotations
@@ -170,7 +170,7 @@ def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Ten
 def _systems(ctx, direct, k, geometry, group, fit, halves: bool = True) -> list[tuple]:
     """The normal equations ``(G, b)`` of the groups' weights on the rotated residuals
     ``fit = (radial, tangential, their weights, half)``, one per half of the pixels (``half``: a
-    checkerboard of source-patch-sized blocks; ``halves=False``: one, of all the pixels)."""
+    boolean checkerboard of source-patch-sized blocks; ``halves=False``: one, of all the pixels)."""
     ra, ta, wr, wt, half = fit
     # only the pixels that weigh (the others add nothing to the sums): the fitting half of a
     # candidate's fit is half of them, a half of the checkerboard half of those
@@ -178,7 +178,7 @@ def _systems(ctx, direct, k, geometry, group, fit, halves: bool = True) -> list[
     rad, tan = _loadings(ctx.scene, direct, k, *geometry, group, cols)
     ra, ta, wr, wt, half = (x[cols] for x in fit)
     out = []
-    for m in (half > 0, half == 0) if halves else (torch.ones_like(half, dtype=torch.bool),):
+    for m in (half, ~half) if halves else (slice(None),):
         r, t = rad[:, m], tan[:, m]
         ar, at = r * wr[m], t * wt[m]
         out.append(((ar @ r.T + at @ t.T).numpy(), (ar @ ra[m] + at @ ta[m]).numpy()))
@@ -257,7 +257,7 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
         wr = torch.where(ok, 1.0 / va.clamp_min(1e-300), torch.zeros_like(va))
         wt = torch.where(ok, 1.0 / vt.clamp_min(1e-300), torch.zeros_like(vt))
         yy, xx = torch.arange(h).view(-1, 1) // step, torch.arange(w).view(1, -1) // step
-        half = ((yy + xx) % 2 == 0).reshape(-1).to(torch.float64)
+        half = ((yy + xx) % 2 == 0).reshape(-1)
         fit = (torch.where(ok, ra, 0.0), torch.where(ok, ta, 0.0), wr, wt, half)
         geometries = GEOMETRIES
         if _KEY in model.profiles:  # the geometry is chosen when the term enters; then kept
