@@ -76,7 +76,9 @@ def test_sources_of_one_relaying_patch_are_found_one_by_one():
     again = update_sources(one, obs, ctx, pred, "train")
     w1 = again.profiles["multipath_sources"]
     assert float(w1.max()) > 0 and torch.equal(w1, torch.full_like(w1, float(w1[0, 0])))
-    assert again.values["multipath_sources.dof"] == 3.0  # one weight and the geometry
+    mirrors = again.profiles.get("multipath_sources_mirrors")
+    lit = 0 if mirrors is None else int((mirrors[:, 4] > 0).sum())
+    assert again.values["multipath_sources.dof"] == 3.0 + lit  # one weight, geometry, mirrors
     chosen = update_sources(one, obs, ctx, pred, "all").profiles["multipath_sources"]
     assert int(chosen.argmax()) == sy * nx + sx and float(chosen.max()) > 0.6 * float(chosen.sum())
 
@@ -104,3 +106,41 @@ def test_a_hint_that_no_longer_preconditions_is_replaced():
     _, fresh = fit(start, obs, ctx, "train", free=core, iters=20)
     assert hinted == pytest.approx(fresh, rel=1e-9)
     assert hinted < evaluate(start, obs, ctx, "train") - 100.0
+
+
+def test_a_mirror_floor_is_found_with_its_weight():
+    """A specular second path off the floor of a box room (the simulator's ``Multipath`` with a
+    mirror of weight 0.3): the member's fit finds the floor among the scene's planes and gives
+    it about that weight, with little light left to the diffuse sources; the report describes
+    the mirror."""
+    from test_diagnosis import META, _sim
+    from test_sim_optics import _room
+
+    from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
+    from tof_fpn_torch.diagnosis.fit import fit
+    from tof_fpn_torch.diagnosis.run import _baseline, _fit_baseline, observe
+    from tof_fpn_torch.io import Recording, SceneData
+    from tof_fpn_torch.sim import Multipath, synthetic_scene, with_effect
+
+    h, w = 40, 56
+    depth = _room(h, w, 70.0).float()
+    rho = synthetic_scene(h, w, seed=2).reflectance
+    scene = type(synthetic_scene(h, w, seed=2))(depth=depth.view(1, 1, h, w), reflectance=rho)
+    row = torch.tensor([[0.0, 1.0, 0.0, 1.2, 0.3]], dtype=torch.float64)
+    term = Multipath(scene_relay=1.0, source_map=torch.zeros(h, w), mirrors=row)
+    out = with_effect(_sim(), term).run(scene, 8, seed=4)
+    dep = torch.where(out.depth > 0, out.depth, torch.full_like(out.depth, float("nan")))
+    rec = Recording(dep, out.amplitude, dict(META, amplitude_unit="DN"))
+    obs = observe(rec, SceneData(depth, rho[0, 0], meta={"source": "test"}))
+    base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
+    model, _ = fit(base.with_effect("multipath_sources", {}), obs, ctx)
+    mirrors = model.profiles["multipath_sources_mirrors"]
+    floor = [m for m in mirrors if float(m[1]) > 0.99]
+    assert len(floor) == 1 and float(floor[0][3]) == pytest.approx(1.2, abs=0.02)
+    assert float(floor[0][4]) == pytest.approx(0.3, rel=0.15)
+    others = [float(m[4]) for m in mirrors if float(m[1]) <= 0.99]
+    assert max(others, default=0.0) < 0.05
+    with torch.no_grad():
+        pred = predict(model, obs, scene=ctx.scene)
+    told = CATALOGUE["multipath_sources"].describe(model, obs, pred)
+    assert told["mirrors"][0]["weight"] == pytest.approx(float(floor[0][4]), rel=1e-3)

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
+from tof_fpn_torch import constants as K
 from tof_fpn_torch.sim import Camera, Multipath, Photons, Saturation, SimState, synthetic_scene
 from tof_fpn_torch.sim.relay import scene_relay
 
@@ -252,3 +254,123 @@ def test_relay_matrices_built_by_threads_at_once(monkeypatch):
         assert all(torch.equal(a, b) for a, b in zip(out, alone, strict=True))
     assert not relay._BUILDING
     relay._CACHE.clear()
+
+
+def _room(h: int, w: int, fov: float) -> torch.Tensor:
+    """Radial depth (H, W) of a box room seen through a pinhole: a floor 1.2 m below the camera,
+    a back wall at z = 4 m and a side wall at x = 1.5 m (whichever a ray meets first)."""
+    from tof_fpn_torch.sim.relay import back_project
+
+    rays = back_project(torch.ones(h, w, dtype=torch.float64), fov)
+    hits = []
+    for normal, c in (((0.0, 1.0, 0.0), 1.2), ((0.0, 0.0, 1.0), 4.0), ((1.0, 0.0, 0.0), 1.5)):
+        t = c / (rays @ torch.tensor(normal, dtype=torch.float64))
+        hits.append(torch.where(t > 0, t, torch.full_like(t, torch.inf)))
+    return torch.stack(hits).amin(0)
+
+
+def test_mirror_planes_are_the_rooms_planes():
+    """The large planes of a box room's depth map are found with their normals and offsets (the
+    floor, back wall and side wall, largest first); a sphere has none."""
+    from tof_fpn_torch.sim.relay import back_project, mirror_planes
+
+    fov = 70.0
+    depth = _room(60, 80, fov)
+    planes = mirror_planes(depth, fov)
+    truth = {(0, 1, 0): 1.2, (0, 0, 1): 4.0, (1, 0, 0): 1.5}
+    assert len(planes) == 3
+    found = {}
+    for row in planes:
+        key = tuple(int(round(float(v))) for v in row[:3])
+        assert float(row[:3].norm()) == pytest.approx(1.0, abs=1e-9)
+        assert float(row[:3] @ torch.tensor(key, dtype=torch.float64)) > 0.999
+        found[key] = float(row[3])
+    assert found == pytest.approx(truth, abs=0.01)
+    pts = back_project(depth, fov)
+    on = [int(((pts @ p[:3] - p[3]).abs() < 0.01).sum()) for p in planes]
+    assert on == sorted(on, reverse=True)  # the largest first
+    rays = back_project(torch.ones(60, 80, dtype=torch.float64), fov)
+    b = rays[..., 2] * 3.0  # a sphere of radius 1 m at 3 m: |t u - c|^2 = 1
+    ball = b - torch.sqrt((b * b - 8.0).clamp_min(0))
+    ball = torch.where(b * b > 8.0, ball, 6.0 / rays[..., 2])  # a far wall (z = 6 m) around it
+    (wall,) = mirror_planes(ball, fov)  # the wall only
+    assert float(wall[2]) > 0.999 and float(wall[3]) == pytest.approx(6.0, abs=0.01)
+
+
+def test_mirror_gains_follow_fermats_path():
+    """The specular path off a plane, against a direct minimisation (SciPy) of the path
+    camera -> mirror point -> scene point over the mirror plane: the same length ``L`` (so the
+    same extra phase) and the inverse-square gain ``(d / L)^2``; points below the floor get
+    nothing."""
+    from scipy.optimize import minimize
+
+    from tof_fpn_torch.sim.relay import back_project, mirror_gains
+
+    fov, ppm = 70.0, 0.84
+    depth = _room(30, 40, fov)
+    floor = torch.tensor([[0.0, 1.0, 0.0, 1.2]], dtype=torch.float64)
+    gain, psi = mirror_gains(depth, fov, floor, ppm)
+    pts = back_project(depth, fov)
+    for y, x in ((3, 5), (10, 30), (14, 2), (6, 20)):
+        p = pts[y, x].numpy()
+        if p[1] > 1.2 - 0.05:
+            continue
+
+        def path(fxz, p=p):
+            f = np.array([fxz[0], 1.2, fxz[1]])
+            return np.linalg.norm(f) + np.linalg.norm(p - f)
+
+        best = minimize(
+            path,
+            x0=[p[0] / 2, p[2] / 2],
+            method="Nelder-Mead",
+            options={"xatol": 1e-10, "fatol": 1e-12, "maxiter": 4000},
+        )
+        d = float(depth[y, x])
+        ell = float(best.fun)
+        assert float(psi[0, y, x]) == pytest.approx(0.5 * ppm * (ell - d), rel=1e-6)
+        assert float(gain[0, y, x]) == pytest.approx((d / ell) ** 2, rel=1e-6)
+    on, above = pts[..., 1] > 1.2 - 0.02, pts[..., 1] < 1.2 - 0.1  # on the floor, above it
+    assert on.any() and float(gain[0][on].abs().max()) == 0.0
+    assert float(gain[0][above].min()) > 0
+
+
+def test_multipath_mirror_adds_the_delayed_phasor():
+    """``Multipath(mirrors=...)``: every pixel's first harmonic becomes ``X (1 + w g e^{j psi})``
+    and its offset ``DC (1 + w g)`` (``g, psi``: :func:`mirror_gains`); weight zero adds
+    nothing; rows that are not (M, 5) or a negative weight are refused."""
+    from tof_fpn_torch.sim.phasor import fundamental
+    from tof_fpn_torch.sim.relay import mirror_gains
+
+    cam = Camera()
+    h, w, fov = 24, 32, 70.0
+    depth = _room(h, w, fov).float().view(1, 1, h, w)
+    scene = synthetic_scene(h, w, seed=1)
+    scene = type(scene)(depth=depth, reflectance=scene.reflectance)
+    act = Photons().mean_samples(cam, scene).double()
+    row = torch.tensor([[0.0, 1.0, 0.0, 1.2, 0.3]], dtype=torch.float64)
+    out = (
+        Multipath(scene_relay=1.0, source_map=torch.zeros(h, w), mirrors=row)
+        .apply(SimState(cam, scene, act.clone(), None))
+        .samples
+    )
+    ppm = 4 * math.pi * cam.modulation_frequency / K.SPEED_OF_LIGHT_AIR
+    g, psi = mirror_gains(depth[0, 0], fov, row[:, :4], ppm)
+    xr, xi = fundamental(act)
+    yr, yi = fundamental(out)
+    z = torch.complex(xr, xi) * (1 + 0.3 * g * torch.exp(1j * psi))
+    assert torch.allclose(torch.complex(yr, yi), z, rtol=1e-6, atol=1e-6)
+    assert torch.allclose(out.mean(1), act.mean(1) * (1 + 0.3 * g), rtol=1e-6)
+    assert float((g > 0).float().mean()) > 0.3
+    none = row.clone()
+    none[0, 4] = 0.0
+    same = (
+        Multipath(scene_relay=1.0, source_map=torch.zeros(h, w), mirrors=none)
+        .apply(SimState(cam, scene, act.clone(), None))
+        .samples
+    )
+    assert torch.equal(same, act)
+    with pytest.raises(ValueError, match="mirrors"):
+        Multipath(scene_relay=1.0, mirrors=row[:, :4])
+    with pytest.raises(ValueError, match="mirrors"):
+        Multipath(scene_relay=1.0, mirrors=-row)

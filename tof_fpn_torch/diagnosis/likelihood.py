@@ -74,6 +74,8 @@ class Context:
     depth_span: float
     amp_span: float
     _frames: dict = field(default_factory=dict)
+    #: what a term computes once per diagnosis from the scene (by the term's own keys)
+    cache: dict = field(default_factory=dict)
 
     def select(self, sel: str) -> torch.Tensor:
         if sel == "all":

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from .. import constants as K
 from .camera import _as_float, _check_range
 from .phasor import _phase_per_metre, rotate_fundamental
-from .relay import scene_relay
+from .relay import mirror_gains, scene_relay
 from .terms import SimState, Term, _num
 
 __all__ = [
@@ -301,6 +301,13 @@ class Multipath(Term):
     place of the same efficiency everywhere (a free relay per surface: a glossy floor, one bright
     wall; multiplies ``scene_relay``). ``cosines``: the relay's form factor with both
     obliquities from the surface normals (:mod:`tof_fpn_torch.sim.relay`).
+
+    ``mirrors`` (M, 5), optional: specular second paths, rows ``(nx, ny, nz, c, weight)``: the
+    plane ``n . X = c`` (camera frame, m, ``c > 0``) mirrors the emitter and every point on the
+    camera's side of it is lit once more from the image emitter, over the path ``d + L``, with
+    ``weight (d / L)^2`` of its direct light (:func:`~tof_fpn_torch.sim.relay.mirror_gains`; a
+    glossy floor or a window pane; ``weight``: the plane's specular reflectance, both ways).
+    Added to the scene relay (multiplies ``scene_relay`` likewise).
     """
 
     strength: float = 0.0
@@ -311,6 +318,7 @@ class Multipath(Term):
     relay_step: int = K.MULTIPATH_RELAY_STEP
     source_map: torch.Tensor | None = None
     cosines: bool = False
+    mirrors: torch.Tensor | None = None
     name: str = field(default="multipath", init=False)
 
     def __post_init__(self) -> None:
@@ -337,6 +345,15 @@ class Multipath(Term):
                 )
             if not bool(torch.isfinite(m).all()) or bool((m < 0).any()):
                 raise ValueError("Multipath.source_map must be finite and >= 0")
+        r = self.mirrors
+        if r is not None:
+            if not isinstance(r, torch.Tensor) or r.dim() != 2 or r.shape[1] != 5:
+                raise ValueError(
+                    "Multipath.mirrors must be an (M, 5) tensor of rows (nx, ny, nz, c, weight), "
+                    f"got {tuple(r.shape) if isinstance(r, torch.Tensor) else type(r).__name__}"
+                )
+            if not bool(torch.isfinite(r).all()) or bool((r[:, 3:] < 0).any()):
+                raise ValueError("Multipath.mirrors must be finite with offsets and weights >= 0")
         return self
 
     def apply(self, state: SimState) -> SimState:
@@ -359,6 +376,7 @@ class Multipath(Term):
         sc = state.scene
         per = samples.shape[0] // sc.depth.shape[0]
         h, w = samples.shape[-2:]
+        out = self._mirrored(samples, state)
         if self.source_map is not None:
             if tuple(self.source_map.shape) != (h, w):
                 raise ValueError(
@@ -380,4 +398,23 @@ class Multipath(Term):
             )
             for i in range(sc.depth.shape[0])
         ]
+        return torch.cat(parts, 0) if out is None else torch.cat(parts, 0) + out
+
+    def _mirrored(self, samples: torch.Tensor, state: SimState) -> torch.Tensor | None:
+        """The light of the specular paths of ``mirrors`` (None without any)."""
+        r = self.mirrors
+        if r is None or r.shape[0] == 0 or not bool((r[:, 4] > 0).any()):
+            return None
+        sc = state.scene
+        per = samples.shape[0] // sc.depth.shape[0]
+        k = _phase_per_metre(state.camera)
+        parts = []
+        for i in range(sc.depth.shape[0]):
+            gain, psi = mirror_gains(sc.depth[i, 0], float(self.field_of_view), r[:, :4], k)
+            s = samples[i * per : (i + 1) * per]
+            one = torch.zeros_like(s)
+            for m in range(r.shape[0]):
+                g = (gain[m] * r[m, 4]).to(s.device, s.dtype)
+                one = one + g * rotate_fundamental(s, psi[m].to(s.device, s.dtype))
+            parts.append(one)
         return torch.cat(parts, 0)

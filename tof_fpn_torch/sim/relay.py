@@ -33,7 +33,22 @@ from collections import OrderedDict
 
 import torch
 
-__all__ = ["CACHE_BYTES", "normals", "relay_matrix", "scene_relay"]
+__all__ = [
+    "CACHE_BYTES",
+    "MIRROR_MIN_SHARE",
+    "back_project",
+    "mirror_gains",
+    "mirror_planes",
+    "normals",
+    "relay_matrix",
+    "scene_relay",
+]
+
+#: a plane of the scene is a candidate mirror when at least this share of the pixels lie on it
+MIRROR_MIN_SHARE: float = 0.08
+_MIRRORS_MAX = 4  # planes kept, the largest first
+_PLANE_COS = math.cos(math.radians(10.0))  # normals within 10 deg of the plane's
+_PLANE_TOL_M = 0.03  # distance to the plane (m), plus 1 % of the depth
 
 #: Relay matrices (one per frame size, geometry and step) kept in memory, the least recently used
 #: dropped beyond this many bytes (the newest is always kept): the diagnosis profiles a few
@@ -114,14 +129,84 @@ def normals(points: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
     return torch.where(((n * points).sum(-1) > 0).unsqueeze(-1), -n, n)
 
 
+def back_project(depth: torch.Tensor, fov_deg: float) -> torch.Tensor:
+    """Scene points (H, W, 3) (m, camera at the origin, z forward) of a radial ``depth`` map
+    (H, W) through a pinhole of horizontal field of view ``fov_deg`` and square pixels."""
+    h, w = depth.shape
+    f_px = (w / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
+    dt = depth.dtype if depth.dtype.is_floating_point else torch.float64
+    yy = (torch.arange(h, dtype=dt).view(h, 1) - (h - 1) / 2.0).expand(h, w)
+    xx = (torch.arange(w, dtype=dt).view(1, w) - (w - 1) / 2.0).expand(h, w)
+    ray = torch.stack([xx / f_px, yy / f_px, torch.ones_like(xx)], -1)
+    return depth.unsqueeze(-1) * ray / ray.norm(dim=-1, keepdim=True)
+
+
+def mirror_planes(depth: torch.Tensor, fov_deg: float) -> torch.Tensor:
+    """The large planes of a depth map (H, W) (m) as rows ``(nx, ny, nz, c)`` (M, 4), float64,
+    ``n . X = c`` with ``c > 0`` (the camera on the side ``n . X < c``), the largest first, at
+    most four, each holding at least ``MIRROR_MIN_SHARE`` of the valid pixels: a vote of every
+    pixel's plane (its normal and offset, :func:`normals`) among the pixels of a coarse grid,
+    the winner refitted by least squares (the smallest singular vector of its pixels), its
+    pixels removed, again. The candidates of a specular second path (:func:`mirror_gains`)."""
+    d = depth.detach().to(torch.float64)
+    pts = back_project(d, fov_deg)
+    nrm = normals(pts, d)
+    step = max(1, int(math.sqrt(d.numel() / 4000)))
+    p, n = pts[::step, ::step].reshape(-1, 3), nrm[::step, ::step].reshape(-1, 3)
+    left = torch.isfinite(p).all(1) & (p[:, 2] > 0) & torch.isfinite(n).all(1)
+    need = MIRROR_MIN_SHARE * float(left.sum())
+    cand = torch.nonzero(left).view(-1)[:: max(1, int(left.sum()) // 400)]
+    out = []
+    for _ in range(_MIRRORS_MAX):
+        if cand.numel() == 0 or float(left.sum()) < need:
+            break
+        nc, cc = n[cand], (n[cand] * p[cand]).sum(1)
+        on = ((n @ nc.T) > _PLANE_COS) & (
+            ((p @ nc.T) - cc.view(1, -1)).abs() < _PLANE_TOL_M + 0.01 * p.norm(dim=1, keepdim=True)
+        )
+        on &= left.view(-1, 1)
+        best = int(on.sum(0).argmax())
+        pix = on[:, best]
+        if float(pix.sum()) < need:
+            break
+        q = p[pix]
+        centre = q.mean(0)
+        normal = torch.linalg.svd(q - centre, full_matrices=False)[2][-1]
+        c = float(normal @ centre)
+        if c < 0:
+            normal, c = -normal, -c
+        out.append(torch.cat([normal, normal.new_tensor([c])]))
+        left &= ~pix
+        cand = cand[left[cand]]
+    return torch.stack(out) if out else d.new_zeros(0, 4)
+
+
+def mirror_gains(
+    depth: torch.Tensor, fov_deg: float, planes: torch.Tensor, phase_per_metre: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(gain, psi)``, each (M, H, W), of a specular second path off each plane of ``planes``
+    (M, 4) (rows ``(n, c)``, :func:`mirror_planes`): a mirror in the plane ``n . X = c`` shows
+    the emitter at ``C' = 2 c n``, so point ``P`` (depth ``d``) is lit once more from
+    ``|P - C'| = L`` and returns the light both ways over the path ``d + L``: relative to its
+    direct light, ``gain = (d / L)^2`` (inverse square from the image emitter, per unit
+    reflectance of the mirror) and phase ``psi = phase_per_metre (L - d) / 2`` (0 for points on
+    or behind the plane)."""
+    d = depth.detach().to(torch.float64)
+    pts = back_project(d, fov_deg)
+    nv, c = planes[:, :3].to(torch.float64), planes[:, 3].to(torch.float64)
+    side = c.view(-1, 1, 1) - torch.einsum("hwk,mk->mhw", pts, nv)  # > 0: the camera's side
+    ell = (pts.unsqueeze(0) - 2.0 * (c.view(-1, 1) * nv).view(-1, 1, 1, 3)).norm(dim=-1)
+    lit = (side > _PLANE_TOL_M + 0.01 * d) & torch.isfinite(ell) & (d > 0)
+    gain = torch.where(lit, (d / ell.clamp_min(1e-9)) ** 2, torch.zeros_like(ell))
+    psi = torch.where(lit, 0.5 * phase_per_metre * (ell - d), torch.zeros_like(ell))
+    return gain, psi
+
+
 def _relay_matrix(d64, fov_deg, near_field, step, phase_per_metre, cosines=False):
     h, w = d64.shape
     d = d64
     f_px = (w / 2.0) / math.tan(math.radians(fov_deg) / 2.0)
-    yy = (torch.arange(h, dtype=torch.float64).view(h, 1) - (h - 1) / 2.0).expand(h, w)
-    xx = (torch.arange(w, dtype=torch.float64).view(1, w) - (w - 1) / 2.0).expand(h, w)
-    ray = torch.stack([xx / f_px, yy / f_px, torch.ones_like(xx)], -1)
-    pts3 = d.unsqueeze(-1) * ray / ray.norm(dim=-1, keepdim=True)
+    pts3 = back_project(d, fov_deg)
     pts = pts3.reshape(-1, 3)
     sy = torch.arange(step // 2, h, step)
     sx = torch.arange(step // 2, w, step)

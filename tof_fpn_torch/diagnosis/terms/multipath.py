@@ -58,8 +58,10 @@ def relay_cached(t, state, units, key, amb_irr, resp):
     if m is not None:  # by content: the map is copied with every model
         ramp = torch.arange(m.numel(), dtype=torch.float64).view(m.shape)
         mkey = (tuple(m.shape), float(m.sum()), float((m.double() * ramp).sum()))
+    r = t.mirrors
+    rmk = None if r is None else tuple(float(v) for v in r.reshape(-1))
     geo = (float(t.field_of_view), float(t.near_field), int(t.relay_step), bool(t.cosines))
-    rkey = (key, *geo, mkey)
+    rkey = (key, *geo, mkey, rmk)
     rel = _RELAY_CACHE.get(rkey)
     if rel is None:
         with torch.no_grad():

@@ -49,7 +49,7 @@ import torch
 from ... import constants as K
 from ...sim import Multipath
 from ...sim.optics import source_step
-from ...sim.relay import relay_matrix
+from ...sim.relay import mirror_gains, mirror_planes, relay_matrix
 from ..readout import rotated_residuals
 from .base import Term, r4
 from .multipath import FIELDS_OF_VIEW, relay_cached
@@ -79,6 +79,7 @@ NNLS_ITERS: int = 1000
 _KEY = "multipath_sources"  # profiles: the source weights (SY, SX) and the (H, W) map
 _MAP = "multipath_sources_map"
 _GROUPS = "multipath_sources_groups"  # (SY, SX): the group of each source (one weight each)
+_MIRRORS = "multipath_sources_mirrors"  # (M, 5): the scene's planes (n, c) and their weights
 
 
 def _grid(h: int, w: int) -> tuple[int, int, int]:
@@ -167,6 +168,16 @@ def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Ten
     return lr * c + li * s, li * c - lr * s
 
 
+def _mirror_loadings(scene, pred, k: float, planes: torch.Tensor, fov: float, cols):
+    """Radial and tangential loadings (M, P) on ``pred``'s phasors of the weights of the
+    specular paths off ``planes`` (M, 4): ``a0 (d / L)^2 e^{j psi}`` in the direct phasor's
+    frame (:func:`~tof_fpn_torch.sim.relay.mirror_gains`)."""
+    gain, psi = mirror_gains(scene.depth[0, 0], fov, planes, k)
+    a0 = pred.a0.detach().reshape(1, -1).to(torch.float64)
+    g, p = (a0 * gain.reshape(len(planes), -1))[:, cols], psi.reshape(len(planes), -1)[:, cols]
+    return g * torch.cos(p), g * torch.sin(p)
+
+
 def _systems(ctx, direct, k, geometry, group, fit, halves: bool = True) -> list[tuple]:
     """The normal equations ``(G, b)`` of the groups' weights on the rotated residuals
     ``fit = (radial, tangential, their weights, half)``, one per half of the pixels (``half``: a
@@ -176,6 +187,14 @@ def _systems(ctx, direct, k, geometry, group, fit, halves: bool = True) -> list[
     # candidate's fit is half of them, a half of the checkerboard half of those
     cols = torch.nonzero((wr > 0) | (wt > 0)).view(-1)
     rad, tan = _loadings(ctx.scene, direct, k, *geometry, group, cols)
+    planes = ctx_planes(ctx, geometry[0])
+    if len(planes):  # the specular paths off the scene's planes: more rows, one weight each
+        mr, mt = _mirror_loadings(ctx.scene, direct, k, planes, geometry[0], cols)
+        rad, tan = torch.cat([rad, mr]), torch.cat([tan, mt])
+    # the scale of the direct light, up and down (the baseline's responsivity took up the mean
+    # of the relayed light: the weights alone, refitted against it, came out a third low)
+    a0 = direct.a0.detach().reshape(1, -1).to(torch.float64)[:, cols]
+    rad, tan = torch.cat([rad, a0, -a0]), torch.cat([tan, torch.zeros_like(a0).repeat(2, 1)])
     ra, ta, wr, wt, half = (x[cols] for x in fit)
     out = []
     for m in (half, ~half) if halves else (slice(None),):
@@ -196,10 +215,18 @@ def _crossed(systems) -> float:
     return _quad(nnls(ga, ba), gb, bb) + _quad(nnls(gb, bb), ga, ba)
 
 
+def ctx_planes(ctx, fov: float) -> torch.Tensor:
+    """The scene's candidate mirror planes (M, 4) for field of view ``fov`` (cached on ``ctx``)."""
+    key = (_MIRRORS, fov)
+    if key not in ctx.cache:
+        ctx.cache[key] = mirror_planes(ctx.scene.depth[0, 0], fov)
+    return ctx.cache[key]
+
+
 def _refined(block: torch.Tensor, x: np.ndarray) -> torch.Tensor:
     """Source groups: every source of a relaying block (weight > 0) on its own, the other
-    blocks whole."""
-    lit = torch.from_numpy(x > 0)[block]
+    blocks whole (``x``: the blocks' weights, then the mirrors')."""
+    lit = torch.from_numpy(x[: int(block.max()) + 1] > 0)[block]
     key = torch.where(lit, torch.arange(len(block)) + int(block.max()) + 1, block)
     return torch.unique(key, return_inverse=True)[1]
 
@@ -273,13 +300,25 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
             best = max((_two_step(ctx, direct, k, g, block, fit) for g in geometries), key=_gain)
     (_, x, group), (fov, cosines) = best
     out = model.copy()
+    n_groups = int(group.max()) + 1
+    planes = ctx_planes(ctx, fov)
+    xm = torch.from_numpy(x[n_groups:-2]).to(torch.float64).view(-1, 1)
+    # the direct light's scale fitted with the weights (in the responsivity, which the L-BFGS
+    # rounds refine)
+    out.values["photons.responsivity"] = model.values["photons.responsivity"] * (
+        1.0 + float(x[-2] - x[-1])
+    )
+    out.profiles.pop(_MIRRORS, None)
+    if len(planes):
+        out.profiles[_MIRRORS] = torch.cat([planes, xm], 1)
+    x = x[:n_groups]
     weights = torch.from_numpy(x)[group].view(ny, nx)
     out.profiles[_KEY] = weights
     out.profiles[_MAP] = source_map(weights, h, w)
     out.profiles[_GROUPS] = group.view(ny, nx).to(torch.float64)
     out.values[f"{_KEY}.field_of_view"] = fov
     out.values[f"{_KEY}.cosines"] = float(cosines)
-    out.values[f"{_KEY}.dof"] = float((x > 0).sum()) + 2.0
+    out.values[f"{_KEY}.dof"] = float((x > 0).sum() + (xm > 0).sum()) + 2.0
     return out
 
 
@@ -295,7 +334,7 @@ class MultipathSourcesTerm(Term):
     about = "a second bounce from free sources: each surface patch relays its own share of light"
     closed_form = True
     slow = True
-    profile_keys = (_KEY, _MAP, _GROUPS)
+    profile_keys = (_KEY, _MAP, _GROUPS, _MIRRORS)
 
     def simulator_term(self, v: dict, model):
         return Multipath(
@@ -304,6 +343,7 @@ class MultipathSourcesTerm(Term):
             near_field=NEAR_FIELD_M,
             source_map=model.profiles.get(_MAP),
             cosines=bool(v.get(f"{_KEY}.cosines", 1.0)),
+            mirrors=model.profiles.get(_MIRRORS),
         )
 
     def apply_mean(self, state, v: dict, model, chain):
@@ -334,6 +374,12 @@ class MultipathSourcesTerm(Term):
             "sources": list(x.shape) if x is not None else [],
             "effective_parameters": r4(v.get(f"{_KEY}.dof", 0.0)),
         }
+        r = model.profiles.get(_MIRRORS)
+        out["mirrors"] = [
+            {"normal": [r4(float(v)) for v in m[:3]], "offset_m": r4(m[3]), "weight": r4(m[4])}
+            for m in ([] if r is None else r)
+            if float(m[4]) > 0
+        ]
         if x is not None and bool((x > 0).any()):
             k = 4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR
             geo = (out["field_of_view_deg"], out["form_factor_cosines"])
