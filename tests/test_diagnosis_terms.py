@@ -100,6 +100,7 @@ def test_the_catalogue_order_is_kept():
     assert set(catalogue.REVEALED_WITHOUT_SCENE) == {
         "fpn_pattern",
         "noise_floor",
+        "noise_floor_tails",
         "impulsive_pixels",
         "temporal_drift",
         "temporal_drift_frames",
@@ -194,7 +195,7 @@ def test_every_term_declares_the_whole_interface():
             assert getattr(cls, method) is not getattr(Term, method), f"{t.name}.{method}"
         hooks = {
             "variance": ("depth_variance", "depth_variance_limit", "amplitude_sd"),
-            "frames": ("frame_means", "outlier_rate"),
+            "frames": ("frame_means", "outlier_rate", "depth_tail"),
             "wrap": ("wrap_range",),
         }.get(t.enters, ())
         if hooks:

@@ -17,8 +17,9 @@ How a term enters (``Term.enters``):
 * ``variance`` -- a change of the predicted spread (``noise_floor``: clock jitter adds its
   variance to every depth; ``pixel_gain``: a random gain per pixel adds ``(rms A)^2`` to the
   variance of the amplitude's temporal mean, the EMVA 1288 PRNU);
-* ``frames`` -- per-frame changes (``temporal_drift``) and per-frame outliers
-  (``impulsive_pixels``: a mixture with a uniform component);
+* ``frames`` -- per-frame changes (``temporal_drift``), per-frame outliers
+  (``impulsive_pixels``: a mixture with a uniform component) and a heavy-tailed law of the
+  readings (``noise_floor_tails``: Student-t);
 * ``wrap`` -- ``phase_wrapping``: the depth is folded into ``[0, R)``.
 
 Adding a term
@@ -38,7 +39,7 @@ Adding a term
    for ``report.json``).
 3. Implement the hook of how it enters: a ``chain`` term gets ``apply_mean`` for free from its
    simulator term; a ``variance`` term overrides ``depth_variance``, ``depth_variance_limit`` or
-   ``amplitude_sd``; a ``frames`` term ``frame_means`` or ``outlier_rate``; a ``wrap`` term
+   ``amplitude_sd``; a ``frames`` term ``frame_means``, ``outlier_rate`` or ``depth_tail``; a ``wrap`` term
    ``wrap_range``. Tuning numbers of the term go at the top of its module, documented.
 4. Register an instance in :data:`TERMS` below (at the end unless the order of candidates
    matters).
@@ -65,6 +66,7 @@ from .terms.mixed_pixels import MixedPixelsTerm
 from .terms.multipath import MultipathTerm
 from .terms.multipath_sources import MultipathSourcesTerm
 from .terms.noise_floor import NoiseFloorTerm
+from .terms.noise_floor_tails import NoiseFloorTailsTerm
 from .terms.phase_wrapping import PhaseWrappingTerm
 from .terms.pixel_gain import PixelGainTerm
 from .terms.saturation import SaturationTerm
@@ -103,6 +105,7 @@ TERMS: tuple[Term, ...] = (
     TemporalDriftFramesTerm(),
     SaturationKneeTerm(),
     MultipathSourcesTerm(),
+    NoiseFloorTailsTerm(),
 )
 
 #: name -> term

@@ -13,7 +13,10 @@ act per frame change the statistics: a per-frame change of the means (``Term.fra
 ``temporal_drift``) is subtracted before they are taken; an outlier rate ``r``
 (``Term.outlier_rate``, ``impulsive_pixels``) turns every frame-pixel into a mixture
 ``(1 - r) N_D N_A + r U_D U_A`` with uniform densities over the observed depth and amplitude
-ranges, evaluated on the frames themselves. Mixed pixels at depth edges with a free share
+ranges, evaluated on the frames themselves; a heavy-tailed depth noise (``Term.depth_tail``,
+``noise_floor_tails``) makes each depth reading Student-t with ``dof`` degrees of freedom about
+its mean, scaled to the predicted variance ``v`` (scale ``s^2 = v (dof - 2) / dof``), also on
+the frames. Mixed pixels at depth edges with a free share
 (``Term.edge_mixture``) turn the temporal mean of each edge pixel into a mixture over the share
 (pooled statistics only: not combined with the outlier mixture).
 """
@@ -144,8 +147,9 @@ def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all")
     per_frame = [x for x in (t.frame_means(v, obs, model) for t in terms) if x is not None]
     rate = next((r for r in (t.outlier_rate(v) for t in terms) if r is not None), None)
     mixed = next((r for r in (t.edge_mixture(v) for t in terms) if r is not None), None)
-    out = _nll_frames(obs, ctx, pred, sel, per_frame, rate)
-    if mixed is not None and rate is None:
+    tail = next((r for r in (t.depth_tail(v) for t in terms) if r is not None), None)
+    out = _nll_frames(obs, ctx, pred, sel, per_frame, rate, tail)
+    if mixed is not None and rate is None and tail is None:
         clip = next((c for c in (t.clip_level(v) for t in terms) if c is not None), None)
         if clip is not None:  # it selects pixels: no graph
             clip = float(torch.as_tensor(clip).detach())
@@ -155,9 +159,10 @@ def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all")
     return out
 
 
-def _nll_frames(obs: Observations, ctx: Context, pred, sel: str, per_frame: list, rate):
-    """The NLL without the edge mixture: pooled, or frame by frame (per-frame means, outliers)."""
-    if not per_frame and rate is None:
+def _nll_frames(obs: Observations, ctx: Context, pred, sel: str, per_frame: list, rate, tail=None):
+    """The NLL without the edge mixture: pooled, or frame by frame (per-frame means, outliers,
+    a heavy-tailed depth noise)."""
+    if not per_frame and rate is None and tail is None:
         return _nll_pooled(obs, ctx, pred, sel)
     xd, vd, idd = ctx.frames(obs, sel, "d")
     xa, va, ida = ctx.frames(obs, sel, "a")
@@ -171,12 +176,16 @@ def _nll_frames(obs: Observations, ctx: Context, pred, sel: str, per_frame: list
     if rate is None:
         yd = xd - (mu_d - mu_d[:1]) if per_frame else xd
         ya = xa - (mu_a - mu_a[:1]) if per_frame else xa
-        n, m, m2 = pixel_stats(yd, vd)
-        out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], _pick(pred.tau_d, idd), pred.wrap)
+        if tail is None:
+            n, m, m2 = pixel_stats(yd, vd)
+            out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], _pick(pred.tau_d, idd), pred.wrap)
+        else:  # Student-t readings, frame by frame (the amplitude's pooled statistics as is)
+            out = -(_depth_log_density(yd - mu_d[:1], pred, idd, sd_d[:1], tail) * vd).sum()
         n, m, m2 = pixel_stats(ya, va)
         tau0 = tau[0] if isinstance(tau, torch.Tensor) else tau
         return out + _gauss_ss(n, m, m2, mu_a[0], sd_a[0], tau0, None)
-    return _nll_mixture(ctx, pred, rate, (xd, vd, idd, mu_d, sd_d), (xa, va, ida, mu_a, sd_a), tau)
+    depth, amp = (xd, vd, idd, mu_d, sd_d), (xa, va, ida, mu_a, sd_a)
+    return _nll_mixture(ctx, pred, rate, depth, amp, tau, tail)
 
 
 def _edge_mixture(obs: Observations, ctx: Context, pred, prob, sel: str, freq: float, clip=None):
@@ -294,25 +303,47 @@ def _nll_pooled(obs: Observations, ctx: Context, pred, sel: str) -> torch.Tensor
     )
 
 
-def _nll_mixture(ctx: Context, pred, rate, depth: tuple, amp: tuple, tau) -> torch.Tensor:
-    """The NLL of every frame-pixel under the mixture with outlier rate ``rate``; ``depth`` and
-    ``amp``: frames, validity, pixel index, per-frame mean and sd of each channel."""
-    xd, vd, idd, mu_d, sd_d = depth
-    xa, va, ida, mu_a, sd_a = amp
-    rd = xd - mu_d
+def _depth_log_density(rd, pred, idd, sd_d, tail) -> torch.Tensor:
+    """Log-density (T, P) of the depth residuals ``rd`` (folded by the stated range), Gaussian
+    or, with ``tail``, Student-t, of variance ``sd_d^2 + tau_d^2``."""
     if pred.wrap is not None:
         rd = rd - pred.wrap * torch.round(rd / pred.wrap)
     tau_d = _pick(pred.tau_d, idd)
-    vd_tot = sd_d**2 + (tau_d.view(1, -1) ** 2 if isinstance(tau_d, torch.Tensor) else tau_d**2)
-    ld = -0.5 * rd**2 / vd_tot - 0.5 * torch.log(vd_tot) - 0.5 * _LOG2PI
+    var = sd_d**2 + (tau_d.view(1, -1) ** 2 if isinstance(tau_d, torch.Tensor) else tau_d**2)
+    if tail is None:
+        return -0.5 * rd**2 / var - 0.5 * torch.log(var) - 0.5 * _LOG2PI
+    return _student_log_density(rd, var, tail)
+
+
+def _student_log_density(r: torch.Tensor, var: torch.Tensor, tail) -> torch.Tensor:
+    """Log-density of Student-t residuals ``r`` with ``dof = 1 / tail`` (> 2) degrees of
+    freedom and variance ``var``."""
+    nu = 1.0 / torch.as_tensor(tail, dtype=torch.float64)
+    s2 = var * (nu - 2.0) / nu
+    return (
+        torch.lgamma((nu + 1.0) / 2.0)
+        - torch.lgamma(nu / 2.0)
+        - 0.5 * torch.log(nu * math.pi * s2)
+        - 0.5 * (nu + 1.0) * torch.log1p(r * r / (nu * s2))
+    )
+
+
+def _nll_mixture(ctx: Context, pred, rate, depth: tuple, amp: tuple, tau, tail=None):
+    """The NLL of every frame-pixel under the mixture with outlier rate ``rate`` (None: no
+    outliers) and depth noise Gaussian or, with ``tail``, Student-t; ``depth`` and ``amp``:
+    frames, validity, pixel index, per-frame mean and sd of each channel."""
+    xd, vd, idd, mu_d, sd_d = depth
+    xa, va, ida, mu_a, sd_a = amp
+    rd = xd - mu_d
+    ld = _depth_log_density(rd, pred, idd, sd_d, tail)
     va_tot = sd_a**2 + (tau**2 if isinstance(tau, torch.Tensor) else tau**2)
     la = -0.5 * (xa - mu_a) ** 2 / va_tot - 0.5 * torch.log(va_tot) - 0.5 * _LOG2PI
+    pos = torch.searchsorted(ida, idd)
     lu_d = -math.log(ctx.depth_span)
     lu_a = -math.log(ctx.amp_span)
     log_r = torch.log(torch.as_tensor(rate, dtype=torch.float64))
     log_q = torch.log1p(-torch.as_tensor(rate, dtype=torch.float64))
     # the depth pixels are amplitude pixels too (mask_d is inside mask_a): they share the label
-    pos = torch.searchsorted(ida, idd)
     joint = torch.logaddexp(log_q + ld + la[:, pos], log_r + lu_d + lu_a)
     out = -(joint * vd).sum()
     only_a = torch.ones(ida.numel(), dtype=torch.bool)

@@ -54,6 +54,7 @@ __all__ = [
     "CyclicError",
     "FPNPattern",
     "PhaseJitter",
+    "student_t",
     "TemporalDrift",
     "fundamental",
     "rotate_fundamental",
@@ -290,9 +291,12 @@ class TemporalDrift(Term):
 @dataclass
 class PhaseJitter(Term):
     """Clock jitter: every pixel of every frame is delayed by an independent ``N(0, sigma^2)``
-    (``sigma`` in m, depth-equivalent): a depth noise floor that does not fall with amplitude."""
+    (``sigma`` in m, depth-equivalent): a depth noise floor that does not fall with amplitude.
+    ``dof`` (> 2, default infinite: Gaussian): the delays are Student-t with ``dof`` degrees of
+    freedom scaled to the sd ``sigma`` (a heavy-tailed floor: rare large delays)."""
 
     sigma: float = 0.0
+    dof: float = math.inf
     name: str = field(default="noise_floor", init=False)
 
     def __post_init__(self) -> None:
@@ -300,16 +304,45 @@ class PhaseJitter(Term):
 
     def validate(self) -> PhaseJitter:
         _check_range(self.sigma, "PhaseJitter.sigma", 0.0, strict=False, unit=" m")
+        nu = _as_float(self.dof, "PhaseJitter.dof")
+        if not nu > 2:
+            raise ValueError(f"PhaseJitter.dof must be > 2 (a finite sd), got {nu}")
         return self
 
     def apply(self, state: SimState) -> SimState:
         s = state.expand().samples
         b, _, h, w = s.shape
-        xi = _randn((b, 1, h, w), state.generator, s)
+        nu = float(self.dof)
+        if math.isinf(nu):
+            xi = _randn((b, 1, h, w), state.generator, s)
+        else:
+            xi = student_t((b, 1, h, w), nu, state.generator, s) * math.sqrt((nu - 2) / nu)
         state.samples = rotate_fundamental(
             s, xi * (_num(self.sigma, s) * _phase_per_metre(state.camera))
         )
         return state
+
+
+def student_t(shape, dof: float, generator: torch.Generator, like: torch.Tensor) -> torch.Tensor:
+    """Student-t variates with ``dof`` (> 0) degrees of freedom on ``like``'s device and dtype,
+    by Bailey's polar method ("Polar generation of random variates with the t-distribution",
+    Math. Comp. 62, 1994): ``U, V`` uniform on (-1, 1) with ``W = U^2 + V^2 < 1``, then
+    ``T = U sqrt(dof (W^(-2 / dof) - 1) / W)``."""
+    n = math.prod(shape)
+    out = torch.empty(n, device=like.device, dtype=like.dtype)
+    filled = 0
+    while filled < n:
+        m = 2 * (n - filled) + 16  # pi / 4 of the pairs are kept
+        u = torch.empty(2, m, device=like.device, dtype=like.dtype).uniform_(
+            -1, 1, generator=generator
+        )
+        w = (u * u).sum(0)
+        ok = (w < 1) & (w > 0)
+        t = u[0][ok] * torch.sqrt(dof * (w[ok] ** (-2.0 / dof) - 1) / w[ok])
+        take = t[: n - filled]
+        out[filled : filled + take.numel()] = take
+        filled += take.numel()
+    return out.view(shape)
 
 
 def with_effect(sim, term: Term):

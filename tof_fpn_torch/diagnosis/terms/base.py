@@ -25,7 +25,7 @@ __all__ = ["ENTERS", "Chain", "Term", "depth_residuals", "least_squares", "r4", 
 ENTERS: dict[str, str] = {
     "chain": "simulator_term in the noise-free mean chain (apply_mean)",
     "variance": "depth_variance / depth_variance_limit / amplitude_sd / depth_mean_sd",
-    "frames": "frame_means / outlier_rate",
+    "frames": "frame_means / outlier_rate / depth_tail",
     "mixture": "edge_mixture",
     "wrap": "wrap_range",
 }
@@ -159,6 +159,11 @@ class Term:
     def outlier_rate(self, v: dict):
         """Share of frame-pixels that carry no information (a uniform mixture component), or
         None."""
+        return None
+
+    def depth_tail(self, v: dict):
+        """``1 / dof`` of a Student-t law of every depth reading about its mean (scaled to the
+        predicted sd: a heavy-tailed noise), or None (Gaussian)."""
         return None
 
     def signature_share(self, obs, ctx, pred):

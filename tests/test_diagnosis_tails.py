@@ -1,0 +1,72 @@
+"""The heavy-tailed member of the noise floor: Student-t variates of the simulator's jitter, the
+Student-t density of the likelihood (both against SciPy), and a planted heavy-tailed jitter
+named ``noise_floor`` with its degrees of freedom."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+
+from tof_fpn_torch.diagnosis import diagnose
+from tof_fpn_torch.diagnosis.likelihood import _student_log_density
+from tof_fpn_torch.sim import Camera, PhaseJitter, Photons, Simulation, synthetic_scene
+from tof_fpn_torch.sim.effects import student_t
+
+
+@pytest.mark.parametrize("dof", [2.5, 3.0, 7.5])
+def test_student_t_variates_follow_scipys_law(dof):
+    gen = torch.Generator().manual_seed(11)
+    x = student_t((200, 300), dof, gen, torch.zeros(1, dtype=torch.float64))
+    assert x.shape == (200, 300)
+    assert stats.kstest(x.reshape(-1).numpy(), stats.t(dof).cdf).pvalue > 0.01
+    # and not a normal law's: the test can tell them apart at this size
+    assert stats.kstest(x.reshape(-1).numpy(), stats.norm(0, x.std().item()).cdf).pvalue < 1e-6
+
+
+def test_student_log_density_matches_scipy():
+    rng = np.random.default_rng(3)
+    r = torch.from_numpy(rng.standard_normal(50) * 0.02)
+    var = torch.from_numpy(rng.uniform(1e-5, 4e-4, 50))
+    for dof in (2.6, 3.0, 10.0, 50.0):
+        got = _student_log_density(r, var, 1.0 / dof).numpy()
+        scale = np.sqrt(var.numpy() * (dof - 2) / dof)  # the law's variance is var
+        want = stats.t.logpdf(r.numpy(), dof, scale=scale)
+        np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10)
+
+
+def test_phase_jitter_with_dof_delays_by_a_scaled_student_t():
+    """Noise-free light, jitter only: the depth errors are ``sigma t_dof sqrt((dof - 2) / dof)``
+    (KS against SciPy), their sd ``sigma``; a dof of 2 or less is refused."""
+    scene = synthetic_scene(64, 64, seed=2, depth_range=(1.0, 3.0))
+    sim = Simulation(Camera(), [Photons(), PhaseJitter(0.01, dof=3.0)])
+    out = sim.run(scene, 4, seed=5)
+    err = (out.depth - scene.depth).reshape(-1).double().numpy()
+    scale = 0.01 * math.sqrt(1.0 / 3.0)
+    assert stats.kstest(err, stats.t(3.0, scale=scale).cdf).pvalue > 0.01
+    assert stats.kstest(err, stats.norm(0, 0.01).cdf).pvalue < 1e-6
+    with pytest.raises(ValueError, match="dof"):
+        PhaseJitter(0.01, dof=2.0)
+
+
+def test_planted_heavy_tailed_jitter_is_named_noise_floor_with_its_tails():
+    """A Student-t jitter (3 degrees of freedom, 25 mm sd) is named ``noise_floor`` alone (not
+    impulsive pixels: its readings are a few sd out, in every pixel) through the heavy-tailed
+    member (finite degrees of freedom: more than 3, the shot noise is Gaussian); a Gaussian
+    jitter of the same sd through the Gaussian term."""
+    from test_diagnosis import _recording
+
+    rec, sd = _recording(PhaseJitter(0.025, dof=3.0), seed=6)
+    diag = diagnose(rec, sd, replicates=0)
+    assert diag.report["verdict"] == ["noise_floor"], diag.report["effects"]
+    eff = diag.report["effects"][0]
+    assert eff["terms"] == ["noise_floor_tails"]
+    assert 2.5 <= eff["params"]["degrees_of_freedom"] < 20.0
+    assert eff["params"]["sigma_mm"] == pytest.approx(25.0, rel=0.2)
+    rec, sd = _recording(PhaseJitter(0.025), seed=6)
+    diag = diagnose(rec, sd, replicates=0)
+    assert diag.report["verdict"] == ["noise_floor"], diag.report["effects"]
+    assert diag.report["effects"][0]["terms"] == ["noise_floor"]

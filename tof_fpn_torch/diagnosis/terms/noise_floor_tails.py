@@ -1,0 +1,71 @@
+"""``noise_floor`` with heavy tails: a flexible member of the noise floor whose readings scatter
+with a Student-t law (free degrees of freedom) instead of a Gaussian one.
+
+The catalogue's ``noise_floor`` adds a Gaussian variance to every depth reading. A real clock's
+jitter, a ground bounce or a readout that now and then slips need not be Gaussian: most readings
+scatter a little more, a few a lot. This member adds the same variance (``sigma``, m) and makes
+every depth reading Student-t about its mean with ``dof = 1 / tail`` degrees of freedom, scaled
+to the predicted variance (``Term.depth_tail``; ``tail`` in (0, ``MAX_TAIL``), so ``dof > 2.5``:
+the floor keeps a finite sd). Its signature is the floor's (a spread in every pixel, extra to
+the shot noise and not falling with the amplitude) with a tail that falls off as a power of the
+residual: readings a few sd out, as often in bright pixels as in dark ones. Impulsive pixels are
+a small share of readings with any value (a uniform component): far out, over the whole range.
+The report names it ``noise_floor``.
+"""
+
+from __future__ import annotations
+
+from ...sim import PhaseJitter
+from ..params import SCALE_DEPTH, ParamSpec
+from .base import Term, r4
+
+__all__ = ["MAX_TAIL", "NoiseFloorTailsTerm"]
+
+#: Largest ``1 / dof`` the Student-t law may fit (dof >= 2.5: a finite sd)
+MAX_TAIL: float = 0.4
+
+
+class NoiseFloorTailsTerm(Term):
+    """Jitter sd (m) and ``1 / dof``; starts at 0.5 and 1.5 times the median predicted depth sd,
+    each with 5 and 3 degrees of freedom."""
+
+    name = "noise_floor_tails"
+    signature = "noise_floor"
+    specs = (
+        ParamSpec("noise_floor_tails.sigma", "rootabs", SCALE_DEPTH**2, "m"),
+        ParamSpec("noise_floor_tails.tail", "logit", MAX_TAIL),
+    )
+    enters = "frames"
+    sim_name = "noise_floor"
+    axes = ("depth_spread|amplitude", "depth_tail|pixels", "depth_mean|pixels")
+    about = (
+        "a heavy-tailed depth noise floor (Student-t readings) that does not fall with amplitude"
+    )
+    revealed_without_scene = True
+
+    def simulator_term(self, v: dict, model):
+        return PhaseJitter(v["noise_floor_tails.sigma"], dof=1.0 / v["noise_floor_tails.tail"])
+
+    def depth_variance(self, v: dict):
+        return v["noise_floor_tails.sigma"] ** 2
+
+    def depth_tail(self, v: dict):
+        return v["noise_floor_tails.tail"]
+
+    def initial_values(self, model, obs, ctx, pred) -> list[dict]:
+        if obs.frames < 2:
+            return []
+        md = ctx.mask_d
+        sd_med = float(pred.sd_d[md].median()) if bool(md.any()) else 1e-3
+        return [
+            {"noise_floor_tails.sigma": f * sd_med, "noise_floor_tails.tail": 1.0 / nu}
+            for f in (0.5, 1.5)
+            for nu in (5.0, 3.0)
+        ]
+
+    def describe(self, model, obs, pred) -> dict:
+        v = model.values
+        return {
+            "sigma_mm": r4(v["noise_floor_tails.sigma"] * 1e3),
+            "degrees_of_freedom": r4(1.0 / v["noise_floor_tails.tail"]),
+        }
