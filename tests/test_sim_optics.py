@@ -374,3 +374,21 @@ def test_multipath_mirror_adds_the_delayed_phasor():
         Multipath(scene_relay=1.0, mirrors=row[:, :4])
     with pytest.raises(ValueError, match="mirrors"):
         Multipath(scene_relay=1.0, mirrors=-row)
+
+
+def test_vignetting_gain_map_is_the_relative_illumination():
+    """``Vignetting(gain_map=g)`` multiplies every sample by ``g``; a map of another size, with
+    a zero or a negative value is refused."""
+    from tof_fpn_torch.sim import Vignetting
+
+    cam = Camera()
+    scene = synthetic_scene(16, 20, seed=1)
+    act = Photons().mean_samples(cam, scene).double()
+    g = 0.5 + torch.rand(16, 20, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    out = Vignetting(gain_map=g).apply(SimState(cam, scene, act.clone(), None)).samples
+    assert torch.allclose(out, act * g.view(1, 1, 16, 20))
+    with pytest.raises(ValueError, match="frames are"):
+        Vignetting(gain_map=torch.ones(5, 5)).apply(SimState(cam, scene, act.clone(), None))
+    for bad in (torch.zeros(16, 20), -torch.ones(16, 20)):
+        with pytest.raises(ValueError, match="gain_map"):
+            Vignetting(gain_map=bad)

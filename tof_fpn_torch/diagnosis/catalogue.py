@@ -74,6 +74,7 @@ from .terms.saturation_knee import SaturationKneeTerm
 from .terms.temporal_drift import TemporalDriftTerm
 from .terms.temporal_drift_frames import TemporalDriftFramesTerm
 from .terms.vignetting import VignettingTerm
+from .terms.vignetting_field import VignettingFieldTerm
 
 __all__ = [
     "CATALOGUE",
@@ -106,6 +107,7 @@ TERMS: tuple[Term, ...] = (
     SaturationKneeTerm(),
     MultipathSourcesTerm(),
     NoiseFloorTailsTerm(),
+    VignettingFieldTerm(),
 )
 
 #: name -> term

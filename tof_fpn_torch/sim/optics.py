@@ -43,6 +43,17 @@ def source_step(h: int, w: int, relay_step: int = K.MULTIPATH_RELAY_STEP) -> int
     return max(int(relay_step), math.ceil(math.sqrt(h * w / K.MULTIPATH_MAX_SOURCES)))
 
 
+def _check_map(m, name: str, positive: bool) -> None:
+    """A map field: None or a finite (H, W) tensor, > 0 (``positive``) or >= 0."""
+    if m is None:
+        return
+    if not isinstance(m, torch.Tensor) or m.dim() != 2:
+        got = tuple(m.shape) if isinstance(m, torch.Tensor) else type(m).__name__
+        raise ValueError(f"{name} must be an (H, W) tensor, got {got}")
+    if not bool(torch.isfinite(m).all()) or bool((m <= 0).any() if positive else (m < 0).any()):
+        raise ValueError(f"{name} must be finite and {'> 0' if positive else '>= 0'}")
+
+
 def _radius2(h: int, w: int, cx, cy, like: torch.Tensor) -> torch.Tensor:
     yy = torch.arange(h, device=like.device, dtype=like.dtype).view(h, 1) - (h - 1) / 2.0
     xx = torch.arange(w, device=like.device, dtype=like.dtype).view(1, w) - (w - 1) / 2.0
@@ -54,12 +65,14 @@ def _radius2(h: int, w: int, cx, cy, like: torch.Tensor) -> torch.Tensor:
 class Vignetting(Term):
     """Lens fall-off of the collected light: gain ``1 + a2 r^2 + a4 r^4`` on every sample, ``r``
     the distance from the optical centre (``centre_x``, ``centre_y`` px from the frame centre) in
-    half-diagonals. ``relative_illumination(r)`` is the gain (1 at the centre)."""
+    half-diagonals; or, with ``gain_map`` (H, W, > 0), that relative illumination itself (a
+    fall-off of any shape: an elliptical lens, a mechanical vignette)."""
 
     quadratic: float = 0.0
     quartic: float = 0.0
     centre_x: float = 0.0
     centre_y: float = 0.0
+    gain_map: object = None
     name: str = field(default="vignetting", init=False)
 
     def __post_init__(self) -> None:
@@ -72,9 +85,16 @@ class Vignetting(Term):
         _as_float(self.centre_y, "Vignetting.centre_y")
         if 1 + min(0.0, a2) + min(0.0, a4) <= 0:
             raise ValueError(f"Vignetting gain must stay > 0 at r = 1, got a2={a2}, a4={a4}")
+        _check_map(self.gain_map, "Vignetting.gain_map", positive=True)
         return self
 
     def gain(self, h: int, w: int, like: torch.Tensor) -> torch.Tensor:
+        if self.gain_map is not None:
+            if tuple(self.gain_map.shape) != (h, w):
+                raise ValueError(
+                    f"Vignetting.gain_map is {tuple(self.gain_map.shape)}, the frames are {(h, w)}"
+                )
+            return self.gain_map.to(device=like.device, dtype=like.dtype).view(1, 1, h, w)
         r2 = _radius2(h, w, self.centre_x, self.centre_y, like)
         g = 1.0 + _num(self.quadratic, like) * r2 + _num(self.quartic, like) * r2 * r2
         return g.clamp_min(1e-3).view(1, 1, h, w)
@@ -336,15 +356,7 @@ class Multipath(Term):
         _check_range(self.near_field, "Multipath.near_field", 0.0, strict=True, unit=" m")
         if int(self.relay_step) != self.relay_step or self.relay_step < 1:
             raise ValueError(f"Multipath.relay_step must be an integer >= 1, got {self.relay_step}")
-        m = self.source_map
-        if m is not None:
-            if not isinstance(m, torch.Tensor) or m.dim() != 2:
-                raise ValueError(
-                    "Multipath.source_map must be an (H, W) tensor, got "
-                    f"{tuple(m.shape) if isinstance(m, torch.Tensor) else type(m).__name__}"
-                )
-            if not bool(torch.isfinite(m).all()) or bool((m < 0).any()):
-                raise ValueError("Multipath.source_map must be finite and >= 0")
+        _check_map(self.source_map, "Multipath.source_map", positive=False)
         r = self.mirrors
         if r is not None:
             if not isinstance(r, torch.Tensor) or r.dim() != 2 or r.shape[1] != 5:
