@@ -149,10 +149,10 @@ DESTRIPE_PILOT_ROWS: int = 32
 #: Window (columns) of ``shrink="local"``: the cross-validated factor is computed per window.
 DESTRIPE_LOCAL_WIDTH: int = 128
 
-# --- the simulator's multipath (sim/optics.py; the diagnosis profiles around them) ------------
+# --- the simulator's multipath (sim/multipath.py; the diagnosis profiles around them) ------------
 #: ``sim.Multipath``'s relay within the visible scene (``sim.relay``): default horizontal field of
 #: view (deg) and near-field length (m), the step (px) between its source patches, raised so that
-#: at most ``MULTIPATH_MAX_SOURCES`` are used (used by sim/optics.py alone, but 300 is also the
+#: at most ``MULTIPATH_MAX_SOURCES`` are used (used by sim/multipath.py alone, but 300 is also the
 #: paper's LOW_SENSING_THRESHOLD, which tests/test_layout.py flags anywhere else; the step goes
 #: with it).
 MULTIPATH_FIELD_OF_VIEW_DEG: float = 70.0

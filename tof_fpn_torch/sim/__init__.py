@@ -12,7 +12,7 @@ samples that the stages, experiments and diagnosis consume.
   (the diagnosis catalogue): :class:`FPNPattern`, :class:`CyclicError`, :class:`AmplitudeBias`,
   :class:`Vignetting`, :class:`TemporalDrift`, :class:`PhaseJitter`, :class:`PixelGain`,
   :class:`LensBlur`, :class:`Saturation`, :class:`Multipath` (the last five in
-  :mod:`~tof_fpn_torch.sim.optics`);
+  :mod:`~tof_fpn_torch.sim.optics`, :mod:`~tof_fpn_torch.sim.multipath`);
   :func:`with_effect` inserts one in a chain.
 * :mod:`~tof_fpn_torch.sim.simulator` -- :class:`Simulation` (camera + list of terms) and
   :func:`simulate`.
@@ -55,10 +55,10 @@ from .effects import (
     TemporalDrift,
     with_effect,
 )
+from .multipath import Multipath
 from .optics import (
     EdgeMixing,
     LensBlur,
-    Multipath,
     PixelGain,
     Saturation,
     Vignetting,

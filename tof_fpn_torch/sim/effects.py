@@ -29,7 +29,7 @@ Catalogue name -> class: physics (parameters):
   returns of neighbouring pixels at depth edges;
 * ``saturation`` -> :class:`~tof_fpn_torch.sim.optics.Saturation`: full-well / anti-blooming clip
   of every sample (e-, knee e-);
-* ``multipath`` -> :class:`~tof_fpn_torch.sim.optics.Multipath`: diffuse interreflection, a
+* ``multipath`` -> :class:`~tof_fpn_torch.sim.multipath.Multipath`: diffuse interreflection, a
   second return of the scene-mean phasor delayed by an extra path (relative strength, m).
 
 ``impulsive_pixels`` is :class:`~tof_fpn_torch.sim.readout.ImpulsivePixels`; ``phase_wrapping`` is

@@ -1,5 +1,5 @@
 """Diffuse interreflection within the visible scene: the relay operator of
-:class:`~tof_fpn_torch.sim.optics.Multipath`'s ``scene_relay`` part.
+:class:`~tof_fpn_torch.sim.multipath.Multipath`'s ``scene_relay`` part.
 
 Geometry: a pinhole camera with horizontal field of view ``fov`` (deg) and square pixels
 (focal length ``f_px = (W / 2) / tan(fov / 2)`` px); the ToF depth ``d_p`` is the radial distance

@@ -6,7 +6,7 @@ point relay its light with one Lambertian efficiency. A real room is not so even
 mirrors the emitter onto the walls, one bright patch lights its surroundings, a diffuse wall
 hardly relays at all. This member keeps the geometry of a second bounce and frees the sources:
 the scene, back-projected through the camera, is sampled at source patches
-(:func:`~tof_fpn_torch.sim.optics.source_step` px apart) and patch ``q`` relays its light with
+(:func:`~tof_fpn_torch.sim.multipath.source_step` px apart) and patch ``q`` relays its light with
 its own weight ``w_q >= 0``. Pixel ``p`` then reads, besides its direct phasor ``X_p``,
 
     R_p = rho_p sum_q w_q F_pq X_q e^{j psi_pq},
@@ -48,7 +48,7 @@ import torch
 
 from ... import constants as K
 from ...sim import Multipath
-from ...sim.optics import source_step
+from ...sim.multipath import source_step
 from ...sim.relay import mirror_gains, mirror_planes, relay_matrix
 from ..readout import rotated_residuals
 from .base import Term, r4
