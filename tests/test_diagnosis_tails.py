@@ -70,3 +70,30 @@ def test_planted_heavy_tailed_jitter_is_named_noise_floor_with_its_tails():
     diag = diagnose(rec, sd, replicates=0)
     assert diag.report["verdict"] == ["noise_floor"], diag.report["effects"]
     assert diag.report["effects"][0]["terms"] == ["noise_floor"]
+
+
+def test_the_member_is_tried_only_on_heavy_tails():
+    """The far readings (beyond 4 predicted sd of their pixel's mean) of a Gaussian recording
+    are about the Gaussian count, and the member is not tried there; a Student-t jitter makes
+    many times as many, and it is."""
+    from test_diagnosis import _recording
+
+    from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
+    from tof_fpn_torch.diagnosis.model import predict
+    from tof_fpn_torch.diagnosis.run import _baseline, _fit_baseline, observe
+    from tof_fpn_torch.diagnosis.terms.noise_floor_tails import far_readings
+
+    term = CATALOGUE["noise_floor_tails"]
+    out = {}
+    for name, jitter in (("gauss", PhaseJitter(0.025)), ("t", PhaseJitter(0.025, dof=3.0))):
+        rec, scene = _recording(jitter, seed=6)
+        obs = observe(rec, scene)
+        base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
+        model = base.with_effect("noise_floor", {"noise_floor.sigma": 0.025})
+        with torch.no_grad():
+            pred = predict(model, obs, scene=ctx.scene)
+        out[name] = (far_readings(obs, ctx, pred), term.initial_values(model, obs, ctx, pred))
+    (count, expected), starts = out["gauss"]
+    assert expected > 0 and count < expected + 4 * math.sqrt(expected) + 1 and starts == []
+    (count, expected), starts = out["t"]
+    assert count > 5 * expected and len(starts) == 2

@@ -15,19 +15,40 @@ The report names it ``noise_floor``.
 
 from __future__ import annotations
 
+import math
+
+import torch
+
 from ...sim import PhaseJitter
 from ..params import SCALE_DEPTH, ParamSpec
 from .base import Term, r4
 
-__all__ = ["MAX_TAIL", "NoiseFloorTailsTerm"]
+__all__ = ["MAX_TAIL", "TAIL_EXCESS_SD", "TAIL_Z", "NoiseFloorTailsTerm", "far_readings"]
 
 #: Largest ``1 / dof`` the Student-t law may fit (dof >= 2.5: a finite sd)
 MAX_TAIL: float = 0.4
+#: The member is tried when more readings lie this many predicted sd from their pixel's
+#: temporal mean than a Gaussian law gives (by more than ``TAIL_EXCESS_SD`` of a Poisson count)
+TAIL_Z: float = 4.0
+TAIL_EXCESS_SD: float = 4.0
+
+
+def far_readings(obs, ctx, pred) -> tuple[int, float]:
+    """``(count, Gaussian expectation)`` of the depth readings of the depth pixels farther than
+    ``TAIL_Z`` predicted sd from their pixel's temporal mean."""
+    ok = obs.valid & ctx.mask_d & (obs.n > 1)
+    d = obs.depth - obs.m_d
+    if pred.wrap is not None:
+        d = d - pred.wrap * torch.round(d / pred.wrap)
+    z = d / pred.sd_d.detach().clamp_min(1e-12)
+    count = int((ok & (z.abs() > TAIL_Z)).sum())
+    return count, float(ok.sum()) * math.erfc(TAIL_Z / math.sqrt(2.0))
 
 
 class NoiseFloorTailsTerm(Term):
-    """Jitter sd (m) and ``1 / dof``; starts at 0.5 and 1.5 times the median predicted depth sd,
-    each with 5 and 3 degrees of freedom."""
+    """Jitter sd (m) and ``1 / dof``; starts at 0.5 and 1.5 times the median predicted depth sd
+    with 4 degrees of freedom, tried only when the readings have a heavier tail than a Gaussian
+    law (:func:`far_readings`)."""
 
     name = "noise_floor_tails"
     signature = "noise_floor"
@@ -55,12 +76,14 @@ class NoiseFloorTailsTerm(Term):
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         if obs.frames < 2:
             return []
+        count, expected = far_readings(obs, ctx, pred)
+        if count <= expected + TAIL_EXCESS_SD * math.sqrt(expected) + 1:
+            return []  # no tail heavier than a Gaussian's: nothing for the member to fit
         md = ctx.mask_d
         sd_med = float(pred.sd_d[md].median()) if bool(md.any()) else 1e-3
         return [
-            {"noise_floor_tails.sigma": f * sd_med, "noise_floor_tails.tail": 1.0 / nu}
+            {"noise_floor_tails.sigma": f * sd_med, "noise_floor_tails.tail": 1.0 / 4.0}
             for f in (0.5, 1.5)
-            for nu in (5.0, 3.0)
         ]
 
     def describe(self, model, obs, pred) -> dict:
