@@ -15,8 +15,10 @@ act per frame change the statistics: a per-frame change of the means (``Term.fra
 ``(1 - r) N_D N_A + r U_D U_A`` with uniform densities over the observed depth and amplitude
 ranges, evaluated on the frames themselves; a heavy-tailed depth noise (``Term.depth_tail``,
 ``noise_floor_tails``) makes each depth reading Student-t with ``dof`` degrees of freedom about
-its mean, scaled to the predicted variance ``v`` (scale ``s^2 = v (dof - 2) / dof``), also on
-the frames. Mixed pixels at depth edges with a free share
+its mean, scaled to the predicted variance ``v`` (scale ``s^2 = v (dof - 2) / dof``): the
+pooled Gaussian NLL less, frame by frame, the log-ratio of the Student-t to the Gaussian density
+of each reading's deviation from its pixel's temporal mean (so that the pixel means keep their
+Gaussian law and random effects, and a large ``dof`` gives the Gaussian NLL back). Mixed pixels at depth edges with a free share
 (``Term.edge_mixture``) turn the temporal mean of each edge pixel into a mixture over the share
 (pooled statistics only: not combined with the outlier mixture).
 """
@@ -176,11 +178,10 @@ def _nll_frames(obs: Observations, ctx: Context, pred, sel: str, per_frame: list
     if rate is None:
         yd = xd - (mu_d - mu_d[:1]) if per_frame else xd
         ya = xa - (mu_a - mu_a[:1]) if per_frame else xa
-        if tail is None:
-            n, m, m2 = pixel_stats(yd, vd)
-            out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], _pick(pred.tau_d, idd), pred.wrap)
-        else:  # Student-t readings, frame by frame (the amplitude's pooled statistics as is)
-            out = -(_depth_log_density(yd - mu_d[:1], pred, idd, sd_d[:1], tail) * vd).sum()
+        n, m, m2 = pixel_stats(yd, vd)
+        out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], _pick(pred.tau_d, idd), pred.wrap)
+        if tail is not None:
+            out = out - _tail_gain(yd, vd, m, sd_d[0], tail, pred.wrap)
         n, m, m2 = pixel_stats(ya, va)
         tau0 = tau[0] if isinstance(tau, torch.Tensor) else tau
         return out + _gauss_ss(n, m, m2, mu_a[0], sd_a[0], tau0, None)
@@ -301,6 +302,19 @@ def _nll_pooled(obs: Observations, ctx: Context, pred, sel: str) -> torch.Tensor
     return out + _gauss_ss(
         obs.n[ma], obs.m_a[ma], obs.m2_a[ma], pred.mu_a[ma], pred.sd_a[ma], tau, None
     )
+
+
+def _tail_gain(yd, vd, m, sd, tail, wrap) -> torch.Tensor:
+    """The log-likelihood a Student-t law (``dof = 1 / tail``) of the readings about their
+    pixel's temporal mean ``m`` adds to a Gaussian one of the same variance ``sd^2``: the pooled
+    Gaussian NLL minus this is the NLL with heavy-tailed readings (a composite likelihood: the
+    pixel means, with their random effects, stay Gaussian; 0 as ``dof`` grows)."""
+    dev = yd - m.view(1, -1)
+    if wrap is not None:
+        dev = dev - wrap * torch.round(dev / wrap)
+    var = (sd * sd).view(1, -1)
+    gauss = -0.5 * dev * dev / var - 0.5 * torch.log(var) - 0.5 * _LOG2PI
+    return ((_student_log_density(dev, var, tail) - gauss) * vd).sum()
 
 
 def _depth_log_density(rd, pred, idd, sd_d, tail) -> torch.Tensor:
