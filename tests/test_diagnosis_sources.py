@@ -9,10 +9,10 @@ import torch
 from scipy.optimize import nnls as scipy_nnls
 
 from tof_fpn_torch.diagnosis.model import predict
+from tof_fpn_torch.diagnosis.nnls import nnls
 from tof_fpn_torch.diagnosis.terms.multipath_sources import (
     SOURCE_BLOCK,
     _grid,
-    nnls,
     update_sources,
 )
 

@@ -313,8 +313,7 @@ def _tail_gain(yd, vd, m, sd, tail, wrap) -> torch.Tensor:
     if wrap is not None:
         dev = dev - wrap * torch.round(dev / wrap)
     var = (sd * sd).view(1, -1)
-    gauss = -0.5 * dev * dev / var - 0.5 * torch.log(var) - 0.5 * _LOG2PI
-    return ((_student_log_density(dev, var, tail) - gauss) * vd).sum()
+    return ((_student_log_density(dev, var, tail) - _gauss_log_density(dev, var)) * vd).sum()
 
 
 def _depth_log_density(rd, pred, idd, sd_d, tail) -> torch.Tensor:
@@ -325,8 +324,13 @@ def _depth_log_density(rd, pred, idd, sd_d, tail) -> torch.Tensor:
     tau_d = _pick(pred.tau_d, idd)
     var = sd_d**2 + (tau_d.view(1, -1) ** 2 if isinstance(tau_d, torch.Tensor) else tau_d**2)
     if tail is None:
-        return -0.5 * rd**2 / var - 0.5 * torch.log(var) - 0.5 * _LOG2PI
+        return _gauss_log_density(rd, var)
     return _student_log_density(rd, var, tail)
+
+
+def _gauss_log_density(r: torch.Tensor, var) -> torch.Tensor:
+    """Log-density of Gaussian residuals ``r`` of variance ``var``."""
+    return -0.5 * r * r / var - 0.5 * torch.log(var) - 0.5 * _LOG2PI
 
 
 def _student_log_density(r: torch.Tensor, var: torch.Tensor, tail) -> torch.Tensor:
@@ -351,7 +355,7 @@ def _nll_mixture(ctx: Context, pred, rate, depth: tuple, amp: tuple, tau, tail=N
     rd = xd - mu_d
     ld = _depth_log_density(rd, pred, idd, sd_d, tail)
     va_tot = sd_a**2 + (tau**2 if isinstance(tau, torch.Tensor) else tau**2)
-    la = -0.5 * (xa - mu_a) ** 2 / va_tot - 0.5 * torch.log(va_tot) - 0.5 * _LOG2PI
+    la = _gauss_log_density(xa - mu_a, va_tot)
     pos = torch.searchsorted(ida, idd)
     lu_d = -math.log(ctx.depth_span)
     lu_a = -math.log(ctx.amp_span)

@@ -50,6 +50,7 @@ from ... import constants as K
 from ...sim import Multipath
 from ...sim.multipath import source_step
 from ...sim.relay import mirror_gains, mirror_planes, relay_matrix
+from ..nnls import nnls
 from ..readout import rotated_residuals
 from .base import Term, r4
 from .multipath import FIELDS_OF_VIEW, relay_cached
@@ -57,9 +58,7 @@ from .multipath import FIELDS_OF_VIEW, relay_cached
 __all__ = [
     "GEOMETRIES",
     "NEAR_FIELD_M",
-    "NNLS_ITERS",
     "SOURCE_BLOCK",
-    "nnls",
     "MultipathSourcesTerm",
     "source_map",
 ]
@@ -74,8 +73,6 @@ NEAR_FIELD_M: float = 0.2
 GEOMETRIES: tuple[tuple[float, bool], ...] = tuple(
     (fov, c) for fov in FIELDS_OF_VIEW for c in (True, False)
 )
-#: most variables the non-negative least squares frees, one at a time (Lawson-Hanson)
-NNLS_ITERS: int = 1000
 _KEY = "multipath_sources"  # profiles: the source weights (SY, SX) and the (H, W) map
 _MAP = "multipath_sources_map"
 _GROUPS = "multipath_sources_groups"  # (SY, SX): the group of each source (one weight each)
@@ -101,37 +98,6 @@ def source_map(weights: torch.Tensor, h: int, w: int) -> torch.Tensor:
     iy = torch.clamp(torch.arange(h) // step, max=ny - 1)
     ix = torch.clamp(torch.arange(w) // step, max=nx - 1)
     return weights[iy.view(h, 1), ix.view(1, w)].to(torch.float64)
-
-
-def nnls(g: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``argmin_{x >= 0} x'Gx / 2 - b'x`` for a positive semi-definite ``G`` (n, n): the
-    active-set method of Lawson and Hanson ("Solving Least Squares Problems", 1974, ch. 23) on
-    the normal equations (with ``G = A'A``, ``b = A'y`` it is ``scipy.optimize.nnls(A, y)``)."""
-    n = len(b)
-    x = np.zeros(n)
-    passive = np.zeros(n, bool)
-    tol = 1e-10 * max(float(np.abs(b).max(initial=0.0)), 1e-300)
-    ridge = 1e-12 * max(float(np.trace(g)) / max(n, 1), 1e-300)  # a singular G (unlit sources)
-    for _ in range(NNLS_ITERS):
-        grad = b - g @ x
-        free = np.flatnonzero(~passive & (grad > tol))
-        if free.size == 0:
-            break
-        passive[free[np.argmax(grad[free])]] = True
-        for _ in range(n + 1):  # the optimum on the passive set, stepped back into x >= 0
-            idx = np.flatnonzero(passive)
-            z = np.zeros(n)
-            z[idx] = np.linalg.solve(g[np.ix_(idx, idx)] + ridge * np.eye(idx.size), b[idx])
-            if (z[idx] > 0).all():
-                x = z
-                break
-            neg = idx[z[idx] <= 0]
-            ratio = x[neg] / (x[neg] - z[neg])
-            x = x + float(ratio.min()) * (z - x)
-            x[neg[np.argmin(ratio)]] = 0.0  # the bound that stops the step is hit exactly
-            passive &= x > 0
-            x[~passive] = 0.0
-    return x
 
 
 def _loadings(scene, pred, k: float, fov: float, cosines: bool, group: torch.Tensor, cols=None):

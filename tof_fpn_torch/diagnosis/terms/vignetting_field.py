@@ -23,8 +23,8 @@ import math
 import torch
 
 from ...sim import Vignetting
+from ..nnls import nnls
 from .base import Term, r4
-from .multipath_sources import nnls
 
 __all__ = ["RAMPS", "SECTORS", "VignettingFieldTerm", "loss_basis"]
 
