@@ -377,3 +377,30 @@ def test_source_member_names_a_glossy_patch():
     assert first["multipath_sources"]["score"] > first["multipath"]["score"]
     assert first["pixel_gain"]["signature_share"] < 0.3
     assert first["fpn_pixel_offsets"]["signature_share"] < 0.3
+
+
+def test_knee_member_cannot_scale_the_noise_of_dark_samples():
+    """However far its variables go, the soft knee is at most ``KNEE_MAX_SHARE`` of its level,
+    so samples below half the level keep at least 0.88 of their slope (a knee as wide as the
+    level scaled every sample's noise: a free noise scale that fitted misfits of the spread)."""
+    from types import SimpleNamespace
+
+    from tof_fpn_torch.diagnosis.params import from_u
+    from tof_fpn_torch.diagnosis.terms.base import Chain
+    from tof_fpn_torch.diagnosis.terms.saturation_knee import KNEE_MAX_SHARE, SaturationKneeTerm
+
+    term = SaturationKneeTerm()
+    spec = {s.key: s for s in term.specs}["saturation_knee.knee_share"]
+    assert float(from_u(spec, 40.0)) <= KNEE_MAX_SHARE
+    level = 1.0e5
+    s = torch.linspace(0.0, level / 2, 101, dtype=torch.float64).view(1, 1, 1, -1)
+    for u in (-5.0, 0.0, 40.0):
+        v = {
+            "saturation_knee.level": level,
+            "saturation_knee.knee_share": from_u(spec, u),
+            "camera.read_noise": 5.0,
+        }
+        chain = Chain(s, (), (), 0.0, 1.0)
+        term.apply_mean(SimpleNamespace(samples=s.clone()), v, None, chain)
+        ratio = chain.sample_var / (s.clamp_min(0) + 25.0)
+        assert float(ratio.min()) >= 0.88**2 - 1e-12, (u, float(ratio.min()))
