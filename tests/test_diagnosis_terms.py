@@ -194,12 +194,7 @@ def test_every_term_declares_the_whole_interface():
         for method in ("simulator_term", "initial_values", "describe"):
             assert getattr(cls, method) is not getattr(Term, method), f"{t.name}.{method}"
         hooks = {
-            "variance": (
-                "depth_variance",
-                "depth_variance_limit",
-                "amplitude_sd",
-                "amplitude_sd_mixture",
-            ),
+            "variance": ("depth_variance", "depth_variance_limit", "amplitude_sd"),
             "frames": ("frame_means", "outlier_rate", "depth_tail"),
             "wrap": ("wrap_range",),
         }.get(t.enters, ())
@@ -397,7 +392,6 @@ def test_edge_mixture_folds_the_depth_as_the_pooled_likelihood_does():
         tau_a=0.0,
         s=const(1.0),
         wrap=torch.tensor([wrap], dtype=f64),  # as a fitted value is
-        mix_a=None,
     )
     change = float(_edge_mixture(obs, ctx, pred, 1e-6, "all", 20e6))
     assert abs(change) < 1e-3, change

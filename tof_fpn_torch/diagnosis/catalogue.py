@@ -16,8 +16,7 @@ How a term enters (``Term.enters``):
   closed form);
 * ``variance`` -- a change of the predicted spread (``noise_floor``: clock jitter adds its
   variance to every depth; ``pixel_gain``: a random gain per pixel adds ``(rms A)^2`` to the
-  variance of the amplitude's temporal mean, the EMVA 1288 PRNU; ``pixel_gain_sparse``: on a
-  share of the pixels only, a scale mixture);
+  variance of the amplitude's temporal mean, the EMVA 1288 PRNU);
 * ``frames`` -- per-frame changes (``temporal_drift``), per-frame outliers
   (``impulsive_pixels``: a mixture with a uniform component) and a heavy-tailed law of the
   readings (``noise_floor_tails``: Student-t);
@@ -70,7 +69,6 @@ from .terms.noise_floor import NoiseFloorTerm
 from .terms.noise_floor_tails import NoiseFloorTailsTerm
 from .terms.phase_wrapping import PhaseWrappingTerm
 from .terms.pixel_gain import PixelGainTerm
-from .terms.pixel_gain_sparse import PixelGainSparseTerm
 from .terms.saturation import SaturationTerm
 from .terms.saturation_knee import SaturationKneeTerm
 from .terms.temporal_drift import TemporalDriftTerm
@@ -110,7 +108,6 @@ TERMS: tuple[Term, ...] = (
     MultipathSourcesTerm(),
     NoiseFloorTailsTerm(),
     VignettingFieldTerm(),
-    PixelGainSparseTerm(),
 )
 
 #: name -> term

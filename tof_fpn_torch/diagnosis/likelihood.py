@@ -7,9 +7,7 @@ pixel ``p`` is computed exactly from its ``(n, m, M2)``::
     + 0.5 log n,          v_m = sigma^2 / n + tau^2
 
 (``tau``: a random effect fixed over time, e.g. the pixel gain on the amplitude, a fixed
-per-pixel offset on the depth; a random effect of a share ``s`` of the pixels only,
-``Term.amplitude_sd_mixture``, makes the amplitude mean's density the scale mixture
-``(1 - s) N(m; mu, v_m) + s N(m; mu, v_m + sd^2)``, not with the outlier mixture below). Depth and
+per-pixel offset on the depth). Depth and
 amplitude count as independent (their noises are orthogonal components of ``X_1``). Terms that
 act per frame change the statistics: a per-frame change of the means (``Term.frame_means``,
 ``temporal_drift``) is subtracted before they are taken; an outlier rate ``r``
@@ -128,23 +126,13 @@ def n_observations(obs: Observations, ctx: Context, sel: str = "all") -> float:
     return float(obs.n[ctx.mask_d & s].sum() + obs.n[ctx.mask_a & s].sum())
 
 
-def _gauss_ss(n, m, m2, mu, sd, tau, wrap, mix=None):
-    """The NLL of the pixels from their statistics (module docstring); ``mix``: ``(share,
-    sd)``, a share of the pixels whose mean carries a further random effect of sd ``sd``: the
-    mean's density is then ``(1 - share) N(m; mu, v_m) + share N(m; mu, v_m + sd^2)``."""
+def _gauss_ss(n, m, m2, mu, sd, tau, wrap):
     r = m - mu
     if wrap is not None:
         r = r - wrap * torch.round(r / wrap)
     var = sd * sd
     vm = var / n + tau * tau if isinstance(tau, torch.Tensor) else var / n + tau**2
-    if mix is None:
-        out = 0.5 * (torch.log(vm) + _LOG2PI + r * r / vm)
-    else:
-        share = torch.as_tensor(mix[0], dtype=torch.float64)
-        out = -torch.logaddexp(
-            torch.log1p(-share) + _gauss_log_density(r, vm),
-            torch.log(share) + _gauss_log_density(r, vm + mix[1] * mix[1]),
-        )
+    out = 0.5 * (torch.log(vm) + _LOG2PI + r * r / vm)
     out = out + 0.5 * ((n - 1) * (torch.log(var) + _LOG2PI) + m2 / var) + 0.5 * torch.log(n)
     return out.sum()
 
@@ -196,8 +184,7 @@ def _nll_frames(obs: Observations, ctx: Context, pred, sel: str, per_frame: list
             out = out - _tail_gain(yd, vd, m, sd_d[0], tail, pred.wrap)
         n, m, m2 = pixel_stats(ya, va)
         tau0 = tau[0] if isinstance(tau, torch.Tensor) else tau
-        mix = None if pred.mix_a is None else (pred.mix_a[0], _pick(pred.mix_a[1], ida))
-        return out + _gauss_ss(n, m, m2, mu_a[0], sd_a[0], tau0, None, mix)
+        return out + _gauss_ss(n, m, m2, mu_a[0], sd_a[0], tau0, None)
     depth, amp = (xd, vd, idd, mu_d, sd_d), (xa, va, ida, mu_a, sd_a)
     return _nll_mixture(ctx, pred, rate, depth, amp, tau, tail)
 
@@ -250,19 +237,8 @@ def _edge_mixture(obs: Observations, ctx: Context, pred, prob, sel: str, freq: f
         r_cam = pred.wrap.reshape(()) if isinstance(pred.wrap, torch.Tensor) else pred.wrap
     sd_max = r_cam / math.sqrt(12.0)  # a phase uniform over the range
 
-    mix = pred.mix_a  # a random effect of a share of the pixels on the amplitude mean
-    extra2 = None if mix is None else at(mix[1], idx) ** 2
-
-    def gauss(r, var, vm, m2, extra2=None):  # twice a pixel's NLL, mean and spread (no constants)
-        if extra2 is None:
-            mean = torch.log(vm) + r * r / vm
-        else:  # the scale mixture of _gauss_ss
-            share = torch.as_tensor(mix[0], dtype=torch.float64)
-            mean = -2.0 * torch.logaddexp(
-                torch.log1p(-share) - 0.5 * (torch.log(vm) + r * r / vm),
-                torch.log(share) - 0.5 * (torch.log(vm + extra2) + r * r / (vm + extra2)),
-            )
-        return mean + (n - 1) * torch.log(var) + m2 / var
+    def gauss(r, var, vm, m2):  # the NLL of a pixel's mean and spread (no constants)
+        return torch.log(vm) + r * r / vm + (n - 1) * torch.log(var) + m2 / var
 
     def cost(s):  # the NLL of both channels at shares s
         zr = (1 - s) * a_p + s * a_q * torch.cos(dphi)
@@ -278,7 +254,7 @@ def _edge_mixture(obs: Observations, ctx: Context, pred, prob, sel: str, freq: f
         da = ma - (mu_a - a_p + mag)  # the Rician bias of the own amplitude kept
         depth = gauss(dd, var_d, var_d / n + tau2, m2d)
         # amplitude-only pixels have no depth part
-        return 0.5 * (has_d * depth + gauss(da, var_a, var_a / n + tau2_a, m2a, extra2))
+        return 0.5 * (has_d * depth + gauss(da, var_a, var_a / n + tau2_a, m2a))
 
     l0 = cost(torch.zeros_like(mu_d))
     s_hat, width = _best_share(cost)
@@ -323,9 +299,8 @@ def _nll_pooled(obs: Observations, ctx: Context, pred, sel: str) -> torch.Tensor
         obs.n[md], obs.m_d[md], obs.m2_d[md], pred.mu_d[md], pred.sd_d[md], tau_d, pred.wrap
     )
     tau = pred.tau_a[ma] if isinstance(pred.tau_a, torch.Tensor) else pred.tau_a
-    mix = None if pred.mix_a is None else (pred.mix_a[0], pred.mix_a[1][ma])
     return out + _gauss_ss(
-        obs.n[ma], obs.m_a[ma], obs.m2_a[ma], pred.mu_a[ma], pred.sd_a[ma], tau, None, mix
+        obs.n[ma], obs.m_a[ma], obs.m2_a[ma], pred.mu_a[ma], pred.sd_a[ma], tau, None
     )
 
 

@@ -209,8 +209,7 @@ class Prediction:
     sd per frame (Rician), ``tau_a`` (sd of the pixel-gain random effect on the amplitude mean),
     ``tau_d`` (sd of a random effect fixed over time on the depth mean, m; 0.0: none),
     the noise-free amplitude ``a0`` and offset ``offset`` (DN), ``s`` (sd of one component of
-    ``(2/N) X_1``), ``wrap`` (R when the model folds the depth, else None), ``mix_a`` (a further
-    random effect on the amplitude means of a share of the pixels: ``(share, sd)``, or None)."""
+    ``(2/N) X_1``), ``wrap`` (R when the model folds the depth, else None)."""
 
     mu_d: torch.Tensor
     sd_d: torch.Tensor
@@ -222,7 +221,6 @@ class Prediction:
     s: torch.Tensor
     wrap: object = None
     tau_d: torch.Tensor | float = 0.0
-    mix_a: tuple | None = None
 
 
 def _baseline_fpn(samples: torch.Tensor, v: dict) -> torch.Tensor:
@@ -310,8 +308,7 @@ def predict(model: DiagnosisModel, obs, v: dict | None = None, scene=None) -> Pr
     tau = _amplitude_tau(model, v, mu_a)
     k = 4.0 * math.pi * f / K.SPEED_OF_LIGHT_AIR
     tau_d = _random_sd([t.depth_mean_sd(v, a0, k) for t in model.terms()])
-    mix = next((m for m in (t.amplitude_sd_mixture(v, mu_a) for t in model.terms()) if m), None)
-    return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap, tau_d, mix)
+    return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap, tau_d)
 
 
 def _reading(depth: torch.Tensor, d_true: torch.Tensor, r_cam: float) -> torch.Tensor:

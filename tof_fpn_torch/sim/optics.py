@@ -97,13 +97,11 @@ class Vignetting(Term):
 @dataclass
 class PixelGain(Term):
     """Photo-response non-uniformity: pixel ``p`` collects ``g_p`` times the light, ``g_p = 1 +
-    rms xi_p`` (fixed from ``seed``; with ``share`` < 1 only on that share of the pixels, drawn
-    from the same seed, the others at gain 1) or the given ``gain_map`` (H, W)."""
+    rms xi_p`` (fixed from ``seed``) or the given ``gain_map`` (H, W)."""
 
     rms: float = 0.0
     seed: int = 5
     gain_map: object = None
-    share: float = 1.0
     name: str = field(default="pixel_gain", init=False)
 
     def __post_init__(self) -> None:
@@ -111,9 +109,6 @@ class PixelGain(Term):
 
     def validate(self) -> PixelGain:
         _check_range(self.rms, "PixelGain.rms", 0.0, strict=False)
-        share = float(self.share)
-        if not 0.0 < share <= 1.0:
-            raise ValueError(f"PixelGain.share must be in (0, 1], got {self.share!r}")
         return self
 
     def gain(self, h: int, w: int, like: torch.Tensor) -> torch.Tensor:
@@ -123,10 +118,7 @@ class PixelGain(Term):
                 raise ValueError(f"PixelGain.gain_map must be ({h}, {w}), got {list(g.shape)}")
             return g.reshape(1, 1, h, w)
         gen = torch.Generator().manual_seed(int(self.seed))
-        xi = torch.randn((h, w), generator=gen, dtype=torch.float64)
-        if float(self.share) < 1.0:
-            xi = xi * (torch.rand((h, w), generator=gen, dtype=torch.float64) < float(self.share))
-        xi = xi.to(like.device, like.dtype)
+        xi = torch.randn((h, w), generator=gen, dtype=torch.float64).to(like.device, like.dtype)
         return (1.0 + _num(self.rms, like) * xi).clamp_min(0.0).view(1, 1, h, w)
 
     def apply(self, state: SimState) -> SimState:

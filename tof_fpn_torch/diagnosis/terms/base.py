@@ -24,8 +24,7 @@ __all__ = ["ENTERS", "Chain", "Term", "depth_residuals", "least_squares", "r4", 
 #: how a term can enter the model (``Term.enters``) and the hook that makes it so
 ENTERS: dict[str, str] = {
     "chain": "simulator_term in the noise-free mean chain (apply_mean)",
-    "variance": "depth_variance / depth_variance_limit / amplitude_sd / amplitude_sd_mixture / "
-    "depth_mean_sd",
+    "variance": "depth_variance / depth_variance_limit / amplitude_sd / depth_mean_sd",
     "frames": "frame_means / outlier_rate / depth_tail",
     "mixture": "edge_mixture",
     "wrap": "wrap_range",
@@ -127,11 +126,6 @@ class Term:
 
     def amplitude_sd(self, v: dict, mu_a: torch.Tensor):
         """Sd of a random effect fixed over time on each pixel's amplitude mean, or None."""
-        return None
-
-    def amplitude_sd_mixture(self, v: dict, mu_a: torch.Tensor):
-        """A random effect fixed over time on the amplitude means of a share of the pixels
-        only: ``(share, sd)`` (sd per pixel, the other pixels without it), or None."""
         return None
 
     def depth_mean_sd(self, v: dict, a0: torch.Tensor, k: float):
