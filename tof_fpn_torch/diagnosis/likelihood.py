@@ -18,8 +18,9 @@ ranges, evaluated on the frames themselves; a heavy-tailed depth noise (``Term.d
 its mean, scaled to the predicted variance ``v`` (scale ``s^2 = v (dof - 2) / dof``): the
 pooled Gaussian NLL less, frame by frame, the log-ratio of the Student-t to the Gaussian density
 of each reading's deviation from its pixel's temporal mean (so that the pixel means keep their
-Gaussian law and random effects, and a large ``dof`` gives the Gaussian NLL back). Mixed pixels at depth edges with a free share
-(``Term.edge_mixture``) turn the temporal mean of each edge pixel into a mixture over the share
+Gaussian law and random effects, and a large ``dof`` gives the Gaussian NLL back; with the
+outlier mixture the Student-t law is of each reading about the model's mean). Mixed pixels at
+depth edges with a free share (``Term.edge_mixture``) turn the temporal mean of each edge pixel into a mixture over the share
 (pooled statistics only: not combined with the outlier mixture).
 """
 

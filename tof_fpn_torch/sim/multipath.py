@@ -11,7 +11,7 @@ import torch
 
 from .. import constants as K
 from .camera import _check_range
-from .optics import _check_map
+from .optics import _check_map, _frame_map
 from .phasor import _phase_per_metre, rotate_fundamental
 from .relay import mirror_gains, scene_relay
 from .terms import SimState, Term, _num
@@ -126,12 +126,7 @@ class Multipath(Term):
         h, w = samples.shape[-2:]
         out = self._mirrored(samples, state)
         if self.source_map is not None:
-            if tuple(self.source_map.shape) != (h, w):
-                raise ValueError(
-                    f"Multipath.source_map is {tuple(self.source_map.shape)}, the frames are "
-                    f"{(h, w)}"
-                )
-            samples = samples * self.source_map.to(samples.device, samples.dtype)
+            samples = samples * _frame_map(self.source_map, "Multipath.source_map", h, w, samples)
         step = source_step(h, w, self.relay_step)
         parts = [
             scene_relay(

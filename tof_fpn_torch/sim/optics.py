@@ -43,6 +43,14 @@ def _check_map(m, name: str, positive: bool) -> None:
         raise ValueError(f"{name} must be finite and {'> 0' if positive else '>= 0'}")
 
 
+def _frame_map(m: torch.Tensor, name: str, h: int, w: int, like: torch.Tensor) -> torch.Tensor:
+    """The (H, W) map field ``m`` as a (1, 1, H, W) tensor like ``like``; a map of another size
+    than the frames is refused."""
+    if tuple(m.shape) != (h, w):
+        raise ValueError(f"{name} is {tuple(m.shape)}, the frames are {(h, w)}")
+    return m.to(device=like.device, dtype=like.dtype).view(1, 1, h, w)
+
+
 def _radius2(h: int, w: int, cx, cy, like: torch.Tensor) -> torch.Tensor:
     yy = torch.arange(h, device=like.device, dtype=like.dtype).view(h, 1) - (h - 1) / 2.0
     xx = torch.arange(w, device=like.device, dtype=like.dtype).view(1, w) - (w - 1) / 2.0
@@ -79,11 +87,7 @@ class Vignetting(Term):
 
     def gain(self, h: int, w: int, like: torch.Tensor) -> torch.Tensor:
         if self.gain_map is not None:
-            if tuple(self.gain_map.shape) != (h, w):
-                raise ValueError(
-                    f"Vignetting.gain_map is {tuple(self.gain_map.shape)}, the frames are {(h, w)}"
-                )
-            return self.gain_map.to(device=like.device, dtype=like.dtype).view(1, 1, h, w)
+            return _frame_map(self.gain_map, "Vignetting.gain_map", h, w, like)
         r2 = _radius2(h, w, self.centre_x, self.centre_y, like)
         g = 1.0 + _num(self.quadratic, like) * r2 + _num(self.quartic, like) * r2 * r2
         return g.clamp_min(1e-3).view(1, 1, h, w)

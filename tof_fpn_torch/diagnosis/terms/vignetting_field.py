@@ -104,10 +104,6 @@ class VignettingFieldTerm(Term):
         g = model.profiles.get(_KEY)
         return None if g is None else Vignetting(gain_map=g)
 
-    def apply_mean(self, state, v: dict, model, chain):
-        t = self.simulator_term(v, model)
-        return state if t is None else t.apply(state)
-
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         return [{}]
 
