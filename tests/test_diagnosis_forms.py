@@ -404,3 +404,23 @@ def test_knee_member_cannot_scale_the_noise_of_dark_samples():
         term.apply_mean(SimpleNamespace(samples=s.clone()), v, None, chain)
         ratio = chain.sample_var / (s.clamp_min(0) + 25.0)
         assert float(ratio.min()) >= 0.88**2 - 1e-12, (u, float(ratio.min()))
+
+
+@pytest.mark.parametrize("share", [0.01, 0.1, 0.25])
+def test_soft_limit_keeps_dark_samples_and_vanishes_far_below_the_level(share):
+    """The soft knee leaves a dark sample as it is (value and slope 1 at 0), its slope is the
+    derivative of its values (finite differences), it never passes its ceiling, and a level
+    far above the samples leaves them (and their noise) as they are: a level at infinity is no
+    effect, not a scale of every sample."""
+    from tof_fpn_torch.sim.optics import soft_limit
+
+    level = 1.0e5
+    s = torch.linspace(0.0, 3 * level, 30001, dtype=torch.float64)
+    out, slope = soft_limit(s, level, share * level)
+    assert float(out[0]) == pytest.approx(0.0, abs=1e-6) and float(slope[0]) == pytest.approx(1.0)
+    fd = (out[2:] - out[:-2]) / (s[2:] - s[:-2])
+    torch.testing.assert_close(fd, slope[1:-1], rtol=1e-3, atol=1e-6)
+    assert bool((out[1:] >= out[:-1]).all()) and float(out.max()) < level * (1 + 2 * share)
+    far, far_slope = soft_limit(s[:200], 1.0e12, share * 1.0e12)
+    torch.testing.assert_close(far, s[:200], rtol=1e-7, atol=1e-6)
+    torch.testing.assert_close(far_slope, torch.ones_like(far_slope), rtol=0, atol=1e-7)

@@ -99,3 +99,62 @@ def test_the_member_is_tried_only_on_heavy_tails():
     assert expected > 0 and count < expected + 4 * math.sqrt(expected) + 1 and starts == []
     (count, expected), starts = out["t"]
     assert count > 5 * expected and len(starts) == 2
+
+
+def test_outlier_mixture_reads_tails_about_the_pixel_not_the_model_mean():
+    """With the outlier mixture, Gaussian readings about pixel means the model misses by a few
+    sd each (a per-pixel misfit, the same in every frame) are not a heavy tail: a Student-t law
+    fits them worse than the Gaussian one. Centred on the model's mean, the misfit looks like a
+    tail and the Student-t law wins."""
+    from types import SimpleNamespace
+
+    from tof_fpn_torch.diagnosis.likelihood import _nll_mixture
+
+    gen = torch.Generator().manual_seed(3)
+    t, p = 60, 400
+    off = 3.0 * torch.randn(1, p, generator=gen, dtype=torch.float64)  # per-pixel misfit (sd)
+    xd = off + torch.randn(t, p, generator=gen, dtype=torch.float64)
+    xa = 100.0 + torch.randn(t, p, generator=gen, dtype=torch.float64)
+    valid = torch.ones(t, p, dtype=torch.bool)
+    idx = torch.arange(p)
+    ones = torch.ones(1, p, dtype=torch.float64)
+    ctx = SimpleNamespace(depth_span=50.0, amp_span=300.0)
+    pred = SimpleNamespace(wrap=None, tau_d=0.0)
+    depth = (xd, valid, idx, 0.0 * ones, ones)
+    amp = (xa, valid, idx, 100.0 * ones, ones)
+
+    def cost(tail):
+        return float(_nll_mixture(ctx, pred, 1e-3, depth, amp, 0.0, tail))
+
+    assert cost(1.0 / 3.0) > cost(None) + 100.0
+    # the same readings with Student-t deviations about their pixel: the Student-t law wins
+    tdev = torch.from_numpy(stats.t(3.0).rvs((t, p), random_state=4)) / math.sqrt(3.0)
+    depth = (off + tdev, valid, idx, 0.0 * ones, ones)
+    assert cost(1.0 / 3.0) < cost(None) - 100.0
+
+
+def test_far_readings_leave_out_the_readings_the_outliers_explain():
+    """Impulsive pixels (uniform raw codes in 1 % of the frame-pixels) put many depth readings
+    far from their pixel's mean; with the outlier rate in the model they are the outliers' (their
+    amplitude readings land anywhere too), not a heavy-tailed jitter's, and the tail member is
+    not tried."""
+    from test_diagnosis import _recording
+
+    from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
+    from tof_fpn_torch.diagnosis.model import predict
+    from tof_fpn_torch.diagnosis.run import _baseline, _fit_baseline, observe
+    from tof_fpn_torch.diagnosis.terms.noise_floor_tails import far_readings
+    from tof_fpn_torch.sim import ImpulsivePixels
+
+    rec, scene = _recording(ImpulsivePixels(rate=0.01, level=0.05), seed=8)
+    obs = observe(rec, scene)
+    base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
+    model = base.with_effect("impulsive_pixels", {"impulsive_pixels.rate": 0.01})
+    with torch.no_grad():
+        pred = predict(model, obs, scene=ctx.scene)
+    count, expected = far_readings(obs, ctx, pred, 0.01)
+    assert count < 3 * expected
+    assert CATALOGUE["noise_floor_tails"].initial_values(model, obs, ctx, pred) == []
+    # without the outlier rate in the model the same readings are far more than a Gaussian
+    # law's count
+    assert far_readings(obs, ctx, pred)[0] > 5 * expected

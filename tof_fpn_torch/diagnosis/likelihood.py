@@ -18,8 +18,11 @@ ranges, evaluated on the frames themselves; a heavy-tailed depth noise (``Term.d
 its mean, scaled to the predicted variance ``v`` (scale ``s^2 = v (dof - 2) / dof``): the
 pooled Gaussian NLL less, frame by frame, the log-ratio of the Student-t to the Gaussian density
 of each reading's deviation from its pixel's temporal mean (so that the pixel means keep their
-Gaussian law and random effects, and a large ``dof`` gives the Gaussian NLL back; with the
-outlier mixture the Student-t law is of each reading about the model's mean). Mixed pixels at
+Gaussian law and random effects, and a large ``dof`` gives the Gaussian NLL back; readings over
+``CENTRE_Z`` sd from the pixel's median are left out of that mean, so that an outlier does not
+move it); with the outlier mixture the same log-ratio is
+added to the inlier component's log-density, so that an outlier rate going to 0 gives the NLL
+without outliers back where no random effect is stated). Mixed pixels at
 depth edges with a free share (``Term.edge_mixture``) turn the temporal mean of each edge pixel into a mixture over the share
 (pooled statistics only: not combined with the outlier mixture).
 """
@@ -35,6 +38,7 @@ from ..constants import SPEED_OF_LIGHT_AIR
 from .data import Observations, pixel_stats
 
 __all__ = [
+    "CENTRE_Z",
     "CLIP_SHARE",
     "EDGE_MARGIN",
     "MIX_GRID",
@@ -58,6 +62,9 @@ MIX_GRID: int = 32
 #: Edge pairs with a side whose predicted largest sample reaches this share of the clip level
 #: are left out of the edge mixture (the light mixes before the clip).
 CLIP_SHARE: float = 0.9
+#: Readings farther than this many predicted sd from their pixel's temporal median are left out
+#: of the centre about which a heavy-tailed law's deviations are taken (outliers, not tails).
+CENTRE_Z: float = 6.0
 #: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels.
 SPLIT_BLOCK: int = 8
 #: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
@@ -182,7 +189,7 @@ def _nll_frames(obs: Observations, ctx: Context, pred, sel: str, per_frame: list
         n, m, m2 = pixel_stats(yd, vd)
         out = _gauss_ss(n, m, m2, mu_d[0], sd_d[0], _pick(pred.tau_d, idd), pred.wrap)
         if tail is not None:
-            out = out - _tail_gain(yd, vd, m, sd_d[0], tail, pred.wrap)
+            out = out - _tail_gain(yd, vd, sd_d[0], tail, pred.wrap)
         n, m, m2 = pixel_stats(ya, va)
         tau0 = tau[0] if isinstance(tau, torch.Tensor) else tau
         return out + _gauss_ss(n, m, m2, mu_a[0], sd_a[0], tau0, None)
@@ -305,12 +312,12 @@ def _nll_pooled(obs: Observations, ctx: Context, pred, sel: str) -> torch.Tensor
     )
 
 
-def _tail_gain(yd, vd, m, sd, tail, wrap) -> torch.Tensor:
+def _tail_gain(yd, vd, sd, tail, wrap) -> torch.Tensor:
     """The log-likelihood a Student-t law (``dof = 1 / tail``) of the readings about their
-    pixel's temporal mean ``m`` adds to a Gaussian one of the same variance ``sd^2``: the pooled
+    pixel's temporal mean (:func:`_pixel_centre`) adds to a Gaussian one of the same variance ``sd^2``: the pooled
     Gaussian NLL minus this is the NLL with heavy-tailed readings (a composite likelihood: the
     pixel means, with their random effects, stay Gaussian; 0 as ``dof`` grows)."""
-    dev = yd - m.view(1, -1)
+    dev = yd - _pixel_centre(yd, vd, sd.view(1, -1))
     if wrap is not None:
         dev = dev - wrap * torch.round(dev / wrap)
     var = (sd * sd).view(1, -1)
@@ -347,14 +354,33 @@ def _student_log_density(r: torch.Tensor, var: torch.Tensor, tail) -> torch.Tens
     )
 
 
+def _pixel_centre(x: torch.Tensor, valid: torch.Tensor, sd: torch.Tensor) -> torch.Tensor:
+    """Each pixel's temporal mean (1, P) of its valid readings ``x`` (T, P) within
+    :data:`CENTRE_Z` sd ``sd`` of their median, as data (no gradient): the plain mean where no
+    reading is that far, a centre an outlier does not move where one is."""
+    x, sd = x.detach(), sd.detach()
+    med = torch.where(valid, x, torch.full_like(x, float("nan"))).nanmedian(dim=0).values
+    dev = x - med.nan_to_num(0.0).view(1, -1)
+    keep = valid & (dev.abs() <= CENTRE_Z * sd)
+    k = keep.sum(0).clamp_min(1)
+    out = torch.where(keep, x, torch.zeros_like(x)).sum(0) / k
+    return torch.where(keep.any(0), out, med.nan_to_num(0.0)).view(1, -1)
+
+
 def _nll_mixture(ctx: Context, pred, rate, depth: tuple, amp: tuple, tau, tail=None):
     """The NLL of every frame-pixel under the mixture with outlier rate ``rate`` (None: no
     outliers) and depth noise Gaussian or, with ``tail``, Student-t; ``depth`` and ``amp``:
     frames, validity, pixel index, per-frame mean and sd of each channel."""
     xd, vd, idd, mu_d, sd_d = depth
     xa, va, ida, mu_a, sd_a = amp
-    rd = xd - mu_d
-    ld = _depth_log_density(rd, pred, idd, sd_d, tail)
+    ld = _depth_log_density(xd - mu_d, pred, idd, sd_d, None)
+    if tail is not None:  # the readings' tails about their pixel's centre, as without outliers
+        yd = xd - (mu_d - mu_d[:1])  # less the per-frame changes of the means
+        dev = yd - _pixel_centre(yd, vd, sd_d)
+        if pred.wrap is not None:
+            dev = dev - pred.wrap * torch.round(dev / pred.wrap)
+        var = sd_d * sd_d
+        ld = ld + _student_log_density(dev, var, tail) - _gauss_log_density(dev, var)
     va_tot = sd_a**2 + (tau**2 if isinstance(tau, torch.Tensor) else tau**2)
     la = _gauss_log_density(xa - mu_a, va_tot)
     pos = torch.searchsorted(ida, idd)

@@ -227,10 +227,29 @@ class EdgeMixing(Term):
         return state
 
 
+def soft_limit(samples: torch.Tensor, level, knee) -> tuple[torch.Tensor, torch.Tensor]:
+    """Samples ``R`` (e-) compressed softly towards ``level`` over a ``knee`` (> 0), and the
+    slope of the compression at each: ``f(R) = (g(R) - g(0)) / g'(0)`` with ``g(R) = level - knee
+    softplus((level - R) / knee)``, ``g'(R) = sigmoid((level - R) / knee)``. The normalisation
+    keeps a dark sample as it is (``f(0) = 0``, slope 1 at 0): without it every sample, however
+    far below the level, would be scaled by ``g'(0) < 1`` (0.98 for a knee a quarter of the
+    level), and a level far above the data would still bend all of it."""
+    level = torch.as_tensor(level, dtype=samples.dtype, device=samples.device)
+    knee = torch.as_tensor(knee, dtype=samples.dtype, device=samples.device)
+    s0 = torch.sigmoid(level / knee)
+    # g(R) - g(0) in the form that has no difference of two large numbers: below the level
+    # R - knee [softplus((R - level) / knee) - softplus(-level / knee)], above it
+    # knee [softplus(level / knee) - softplus((level - R) / knee)]
+    below = samples - knee * (F.softplus((samples - level) / knee) - F.softplus(-level / knee))
+    above = knee * (F.softplus(level / knee) - F.softplus((level - samples) / knee))
+    out = torch.where(samples <= level, below, above) / s0
+    return out, torch.sigmoid((level - samples) / knee) / s0
+
+
 @dataclass
 class Saturation(Term):
     """Full-well / anti-blooming limit: every sample is clipped at ``level`` e-, softly over a
-    ``knee`` (e-; 0: a hard clip): ``level - knee softplus((level - R) / knee)``."""
+    ``knee`` (e-; 0: a hard clip) by :func:`soft_limit`."""
 
     level: float = 1e9
     knee: float = 0.0
@@ -269,8 +288,7 @@ class Saturation(Term):
         s = state.samples
         lv = _num(self.level, s)
         if _as_float(self.knee, "knee") > 0:
-            kn = _num(self.knee, s)
-            state.samples = lv - kn * F.softplus((lv - s) / kn)
+            state.samples = soft_limit(s, lv, _num(self.knee, s))[0]
         else:
             state.samples = torch.minimum(
                 s, lv if isinstance(lv, torch.Tensor) else s.new_tensor(lv)

@@ -8,8 +8,9 @@ every depth reading Student-t about its mean with ``dof = 1 / tail`` degrees of 
 to the predicted variance (``Term.depth_tail``; ``tail`` in (0, ``MAX_TAIL``), so ``dof > 2.5``:
 the floor keeps a finite sd). Its signature is the floor's (a spread in every pixel, extra to
 the shot noise and not falling with the amplitude) with a tail that falls off as a power of the
-residual: readings a few sd out, as often in bright pixels as in dark ones. Impulsive pixels are
-a small share of readings with any value (a uniform component): far out, over the whole range.
+residual: readings a few sd out in depth alone (the amplitude reading as usual), as often in
+bright pixels as in dark ones. Impulsive pixels are a small share of readings with any value (a
+uniform component): far out, over the whole range, in amplitude as well as in depth.
 The report names it ``noise_floor``.
 """
 
@@ -20,6 +21,7 @@ import math
 import torch
 
 from ...sim import PhaseJitter
+from ..likelihood import _gauss_log_density, _pixel_centre
 from ..params import SCALE_DEPTH, ParamSpec
 from .base import Term, r4
 
@@ -45,16 +47,30 @@ TAIL_RATIO: float = 3.0
 TAIL_EXCESS_SD: float = 4.0
 
 
-def far_readings(obs, ctx, pred) -> tuple[int, float]:
+def far_readings(obs, ctx, pred, rate=None) -> tuple[int, float]:
     """``(count, Gaussian expectation)`` of the depth readings of the depth pixels farther than
-    ``TAIL_Z`` predicted sd from their pixel's temporal mean."""
-    ok = obs.valid & ctx.mask_d & (obs.n > 1)
-    d = obs.depth - obs.m_d
+    ``TAIL_Z`` predicted sd from their pixel's temporal mean (outliers left out of it:
+    ``likelihood._pixel_centre``) that the model's outliers (``rate``: the share of frame-pixels
+    with any value, uniform over the observed depth and amplitude ranges) do not claim, both
+    channels' readings together: a jitter of the delay moves the phase alone, an impulse (a hot
+    pixel, a corrupted raw sample) lands anywhere in depth and in amplitude."""
+    t = obs.frames
+    ok = (obs.valid & ctx.mask_d & (obs.n > 1)).reshape(t, -1)
+    sd = pred.sd_d.detach().clamp_min(1e-12).reshape(1, -1)
+    x = torch.where(ok, obs.depth.reshape(t, -1), torch.zeros((), dtype=obs.depth.dtype))
+    d = x - _pixel_centre(x, ok, sd)
     if pred.wrap is not None:
         d = d - pred.wrap * torch.round(d / pred.wrap)
-    z = d / pred.sd_d.detach().clamp_min(1e-12)
-    count = int((ok & (z.abs() > TAIL_Z)).sum())
-    return count, float(ok.sum()) * math.erfc(TAIL_Z / math.sqrt(2.0))
+    far = ok & (d.abs() > TAIL_Z * sd)
+    if rate is not None:  # the readings the outliers' uniform law explains better are theirs
+        sa = pred.sd_a.detach().clamp_min(1e-12).reshape(1, -1)
+        xa = torch.where(ok, obs.amplitude.reshape(t, -1), torch.zeros((), dtype=x.dtype))
+        da = xa - _pixel_centre(xa, ok, sa)
+        r = float(torch.as_tensor(rate).detach())
+        inlier = math.log1p(-r) + _gauss_log_density(d, sd * sd) + _gauss_log_density(da, sa * sa)
+        outlier = math.log(r) - math.log(ctx.depth_span) - math.log(ctx.amp_span)
+        far &= inlier > outlier
+    return int(far.sum()), float(ok.sum()) * math.erfc(TAIL_Z / math.sqrt(2.0))
 
 
 class NoiseFloorTailsTerm(Term):
@@ -88,7 +104,11 @@ class NoiseFloorTailsTerm(Term):
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         if obs.frames < 2:
             return []
-        count, expected = far_readings(obs, ctx, pred)
+        rate = next(
+            (r for r in (t.outlier_rate(model.values) for t in model.terms()) if r is not None),
+            None,
+        )
+        count, expected = far_readings(obs, ctx, pred, rate)
         if (
             count < TAIL_RATIO * expected
             or count <= expected + TAIL_EXCESS_SD * math.sqrt(expected) + 1

@@ -3,22 +3,22 @@ of free width (a flexible member of the ``saturation`` effect).
 
 A sensor's limit is not always a hard full-well clip: an anti-blooming drain, a logarithmic
 pixel or a non-linear ADC compress the bright samples gradually. This member compresses every
-sample ``R`` (e-) as ``level - knee softplus((level - R) / knee)``: ``R`` itself well below the
-level, approaching the level from below above it, the bend over about ``knee`` (two parameters;
+sample ``R`` (e-) by ``sim.optics.soft_limit`` (``level - knee softplus((level - R) / knee)``,
+normalised to keep the dark samples as they are): ``R`` itself well below the level,
+approaching a ceiling above it, the bend over about ``knee`` (two parameters;
 a knee near 0 is the hard clip; the knee is at most ``KNEE_MAX_SHARE`` of the level: a knee as
 wide as the level bends every sample, dark ones too, and scales every sample's noise by the
 slope, a free scale of the noise law that fits any misfit of the spread, not a saturation).
 The compression is deterministic on the mean samples and scales
-each sample's shot and read noise by its slope ``sigmoid((level - R) / knee)``. Its signature is
+each sample's shot and read noise by its slope. Its signature is
 the effect's: the raw samples capped (an amplitude ceiling, a depth error growing towards it, the
 affected share rising with reflectance and nearness); the report names it ``saturation``.
 """
 
 from __future__ import annotations
 
-import torch
-
 from ...sim import Saturation
+from ...sim.optics import soft_limit
 from ..params import ParamSpec
 from .base import Term, r4
 from .saturation import START_QUANTILES, clipped_share, start_levels
@@ -55,11 +55,9 @@ class SaturationKneeTerm(Term):
     def apply_mean(self, state, v: dict, model, chain):
         s = state.samples
         lv = v["saturation_knee.level"]
-        kn = v["saturation_knee.knee_share"] * lv
-        slope = torch.sigmoid((lv - s) / kn)
         var_e = s.clamp_min(0) + v["camera.read_noise"] ** 2
         prev = chain.sample_var if chain.sample_var is not None else var_e
-        state.samples = lv - kn * torch.nn.functional.softplus((lv - s) / kn)
+        state.samples, slope = soft_limit(s, lv, v["saturation_knee.knee_share"] * lv)
         chain.sample_var = prev * slope * slope
         return state
 
