@@ -106,3 +106,33 @@ def test_common_share_tells_a_drift_from_outliers():
     spikes = torch.where(hot, frames + 2.0, frames)
     assert common_share(*_case(0.0 * depth, depth=depth, frames=drift)) > 0.95
     assert common_share(*_case(0.0 * depth, depth=depth, frames=spikes)) < 0.05
+
+
+def test_fine_share_does_not_take_the_scenes_texture_for_fine_structure():
+    """A smooth gain on a scene with a textured amplitude is a smooth misfit, whether it is
+    read in DN (gain times a textured amplitude) or relative to the amplitude; so is a smooth
+    offset (relative to a textured amplitude it would look fine). The gain and offset per pixel
+    stay fine in both frames. Read in one frame only, the smooth ones are not."""
+    gen = torch.Generator().manual_seed(5)
+    tex = 100.0 * torch.exp(0.5 * torch.randn(H, W, generator=gen, dtype=torch.float64))
+
+    def case(res_a, res_d=None):
+        obs, ctx, pred = _case(res_a, res_d)
+        obs.m_a = tex + res_a
+        pred.mu_a = pred.a0 = tex
+        return obs, ctx, pred
+
+    smooth = 0.05 * _smooth_field(2.5 * FINE_SCALE_PX)
+    white = 0.02 * torch.randn(H, W, generator=gen, dtype=torch.float64)
+    for phasor in (False, True):
+        assert fine_share(*case(smooth * tex), phasor=phasor) < 0.1  # a smooth gain
+        assert fine_share(*case(5.0 * smooth / 0.05), phasor=phasor) < 0.1  # a smooth offset
+        assert fine_share(*case(white * tex), phasor=phasor) > 0.9  # a gain per pixel
+        assert fine_share(*case(100.0 * white), phasor=phasor) > 0.9  # an offset per pixel
+    # in DN alone, a good part of the smooth gain looks fine: the scene's texture
+    obs, ctx, pred = case(smooth * tex)
+    from tof_fpn_torch.diagnosis.signature import _fine
+
+    va = pred.sd_a**2 / obs.n
+    m = torch.ones(H, W, dtype=torch.bool)
+    assert _fine([obs.m_a - tex], [va], m, obs.scene_depth) > 0.2

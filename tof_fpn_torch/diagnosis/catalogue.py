@@ -69,6 +69,7 @@ from .terms.noise_floor import NoiseFloorTerm
 from .terms.noise_floor_tails import NoiseFloorTailsTerm
 from .terms.phase_wrapping import PhaseWrappingTerm
 from .terms.pixel_gain import PixelGainTerm
+from .terms.pixel_gain_rows import PixelGainRowsTerm
 from .terms.saturation import SaturationTerm
 from .terms.saturation_knee import SaturationKneeTerm
 from .terms.temporal_drift import TemporalDriftTerm
@@ -108,6 +109,7 @@ TERMS: tuple[Term, ...] = (
     MultipathSourcesTerm(),
     NoiseFloorTailsTerm(),
     VignettingFieldTerm(),
+    PixelGainRowsTerm(),
 )
 
 #: name -> term

@@ -6,12 +6,13 @@ smooth misfit of another effect (a second bounce the model does not hold yet) co
 outlier mixture takes the pixels of any gross misfit. What tells them from that misfit is where
 it lives, not how large it is:
 
-* **fine in space** (:func:`fine_share`; ``pixel_gain`` on the relative amplitude residuals,
+* **fine in space** (:func:`fine_share`; ``pixel_gain`` on the amplitude residuals,
   ``fpn_pixel_offsets`` on the phasor's residuals): a per-pixel gain or offset varies from
   pixel to pixel (a column pattern from column to column); the share of the excess variance of
   the residuals left after a smoothing of ``FINE_SCALE_PX`` px (within the scene's depth
   layers, so that a depth edge is not taken for fine structure) over the excess variance of the
-  residuals themselves;
+  residuals themselves, in DN and relative to the amplitude (the smaller: the scene's amplitude
+  texture is not the misfit's);
 * **sporadic in time** (:func:`sporadic_share`, ``impulsive_pixels``): impulsive frame-pixels
   come and go; the share of the frame-pixels beyond ``OUTLIER_Z`` sd that sit on pixels beyond
   it in at most half the frames (a misfit fixed in time is beyond it in every frame);
@@ -91,26 +92,36 @@ def _fine(res: list, noise: list, m, depth) -> float | None:
 
 def fine_share(obs, ctx, pred, phasor: bool = False) -> float | None:
     """Share of the excess variance of the residuals finer than ``FINE_SCALE_PX`` (in [0, 1];
-    None when there is no excess: nothing to share): of the relative amplitude residuals, or
-    with ``phasor`` of the phasor's residual (radial from the amplitude, tangential from the
-    depth, DN: what a complex offset per pixel moves)."""
+    None when there is no excess: nothing to share): of the amplitude residuals, or with
+    ``phasor`` of the phasor's residual (radial from the amplitude, tangential from the depth:
+    what a complex offset per pixel moves); the smaller of the shares of the residuals in DN
+    and relative to the predicted amplitude. A gain's misfit is the gain times the amplitude,
+    an offset's is the offset: in the other one's frame each carries the scene's amplitude
+    texture, which is fine structure of the scene and not of the misfit (a smooth gain on a
+    textured scene looks fine in DN). A misfit fine in both frames is fine."""
     m = ctx.mask_a & ctx.mask_d & torch.isfinite(obs.m_a) & torch.isfinite(obs.m_d)
     if int(m.sum()) < 16:
         return None
     depth = obs.scene_depth.to(torch.float64)
     mu = pred.mu_a.detach().to(torch.float64)
     va = pred.sd_a.detach() ** 2 / obs.n.clamp_min(1)
-    ra = obs.m_a - mu
-    if not phasor:
-        scale = mu.clamp_min(1e-12)
-        return _fine([ra / scale], [va / scale**2], m, depth)
-    k = 4 * math.pi * float(obs.camera().modulation_frequency) / K.SPEED_OF_LIGHT_AIR
-    rd = obs.m_d - pred.mu_d.detach()
-    if pred.wrap is not None:
-        rd = rd - pred.wrap * torch.round(rd / pred.wrap)
-    ka = k * pred.a0.detach()
-    vt = (pred.sd_d.detach() * ka) ** 2 / obs.n.clamp_min(1)
-    return _fine([ra, rd * ka], [va, vt], m, depth)
+    res, noise = [obs.m_a - mu], [va]
+    if phasor:
+        k = 4 * math.pi * float(obs.camera().modulation_frequency) / K.SPEED_OF_LIGHT_AIR
+        rd = obs.m_d - pred.mu_d.detach()
+        if pred.wrap is not None:
+            rd = rd - pred.wrap * torch.round(rd / pred.wrap)
+        ka = k * pred.a0.detach()
+        res.append(rd * ka)
+        noise.append((pred.sd_d.detach() * ka) ** 2 / obs.n.clamp_min(1))
+    scale = mu.clamp_min(1e-12)
+    shares = (
+        _fine(res, noise, m, depth),
+        _fine([r / scale for r in res], [v / scale**2 for v in noise], m, depth),
+    )
+    if any(x is None for x in shares):
+        return None
+    return min(shares)
 
 
 def sporadic_share(obs, ctx, pred) -> float | None:
