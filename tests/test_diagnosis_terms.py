@@ -31,7 +31,7 @@ from tof_fpn_torch.diagnosis.model import predict
 from tof_fpn_torch.diagnosis.params import from_u, to_u
 from tof_fpn_torch.diagnosis.terms.base import ENTERS, Term
 from tof_fpn_torch.io import Recording, SceneData
-from tof_fpn_torch.sim import STAGE, Camera, Simulation, synthetic_scene
+from tof_fpn_torch.sim import STAGE, Camera, PixelGain, Simulation, synthetic_scene
 from tof_fpn_torch.sim.readout import ADC, Photons, ReadNoise, ReadoutFPN, ShotNoise
 from tof_fpn_torch.sim.terms import SimState
 from tof_fpn_torch.sim.terms import Term as SimTerm
@@ -157,12 +157,16 @@ def test_the_name_scan_sees_a_dispatch(tmp_path):
 
 @pytest.fixture(scope="module")
 def setup():
-    """A 24 x 32, 4-frame recording of the baseline's physics, its observations, the baseline
-    from the data and the likelihood's context."""
+    """A 24 x 32, 4-frame recording of the baseline's physics with one weak row (so that every
+    closed-form member finds something), its observations, the baseline from the data and the
+    likelihood's context."""
     cam = Camera(integration_time=300e-6, adc_bits=16)
     fpn = ReadoutFPN(offset_amplitudes=(30.0, 20.0), gain_amplitudes=(0.0, 0.0))
     fpn.random_offset, fpn.random_gain = 0.0, 0.0
-    sim = Simulation(cam, [Photons(), ShotNoise(), fpn, ReadNoise(), ADC()])
+    row = torch.ones(24, 32, dtype=torch.float64)
+    row[9] = 0.9
+    terms = [Photons(), PixelGain(gain_map=row), ShotNoise(), fpn, ReadNoise(), ADC()]
+    sim = Simulation(cam, terms)
     scene = synthetic_scene(24, 32, seed=5, depth_range=(0.6, 5.0))
     out = sim.run(scene, 4, seed=5)
     depth = torch.where(out.depth > 0, out.depth, torch.full_like(out.depth, math.nan))
