@@ -150,6 +150,11 @@ def rank(
         starts = _starts(term, base_train, obs, ctx, start_values)
         if not starts:
             return None
+        if start_values is not None and model is not base_train:
+            # a grossly misfitting model's noise law is barely determined: the fitting half's
+            # refit may have run far from the all-pixel fit, which is a start too
+            starts.append(_try(model, term, initial_values(name, model, obs, ctx), obs, ctx))
+            starts = [s for s in starts if s is not None]
         # every core value is free: a current model that misfits has its noise law and FPN
         # bent to the misfit, and the term must be able to undo that
         free = [s.key for s in term.specs] + [s.key for s in CORE_SPECS]
