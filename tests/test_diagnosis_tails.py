@@ -192,3 +192,29 @@ def test_a_misfitting_model_gives_its_candidates_its_all_pixel_fit_as_a_start(mo
     seen.clear()
     naming.rank(base, obs, ctx, base_train=off, only=["impulsive_pixels"])
     assert seen and base.values["camera.conversion_gain"] not in seen
+    # a refit that stayed within RUN_OFF_FACTOR of the all-pixel fit: no further start
+    near = base.copy()
+    near.values["camera.conversion_gain"] = 1.5 * base.values["camera.conversion_gain"]
+    seen.clear()
+    naming.rank(base, obs, ctx, base_train=near, only=["impulsive_pixels"], start_values=start)
+    assert seen and base.values["camera.conversion_gain"] not in seen
+
+
+def test_run_off_compares_every_value_of_the_noise_law_by_ratio():
+    """The fitting half's refit has run off when any of responsivity, conversion gain and read
+    noise differs from the all-pixel fit's by more than the factor, either way (and a value
+    that went to 0 has run off); the same model never has."""
+    from tof_fpn_torch.diagnosis.model import DiagnosisModel
+    from tof_fpn_torch.diagnosis.naming import RUN_OFF_FACTOR, _ran_off
+    from tof_fpn_torch.sim import Camera
+
+    vals = {"photons.responsivity": 4e7, "camera.conversion_gain": 24.0, "camera.read_noise": 5.5}
+    a = DiagnosisModel(Camera(), dict(vals))
+    assert not _ran_off(a, a)
+    for k in vals:
+        for f, expect in ((0.99 * RUN_OFF_FACTOR, False), (1.01 * RUN_OFF_FACTOR, True)):
+            for scale in (f, 1.0 / f):
+                b = DiagnosisModel(Camera(), {**vals, k: vals[k] * scale})
+                assert _ran_off(a, b) is expect, (k, scale)
+        b = DiagnosisModel(Camera(), {**vals, k: 0.0})
+        assert _ran_off(a, b)

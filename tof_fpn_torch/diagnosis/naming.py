@@ -28,6 +28,7 @@ __all__ = [
     "FORM_TOLERANCE",
     "MIN_DAIC",
     "MIN_GAIN",
+    "RUN_OFF_FACTOR",
     "initial_values",
     "rank",
 ]
@@ -46,6 +47,12 @@ CONTENDER_SHARE: float = 0.25
 #: error ``e`` in shape leaves a misfit of about ``e^2`` of its gain, which some other term can
 #: take up; 0.1 allows ``e`` of about 30 % (set on development recordings, docs/diagnosis.md).
 FORM_TOLERANCE: float = 0.1
+#: The fitting half's refit of a grossly misfitting model has run off from the all-pixel fit
+#: (whose fit is then a further start of every candidate) when a value of its noise law differs
+#: from the all-pixel fit's by more than this factor.
+RUN_OFF_FACTOR: float = 2.0
+#: the noise law's values compared for :data:`RUN_OFF_FACTOR` (positive, log-scaled)
+_NOISE_LAW = ("photons.responsivity", "camera.conversion_gain", "camera.read_noise")
 #: the owners of the core values taken from the robust start
 _CORE_OWNERS = ("photons", "camera", "readout_fpn")
 
@@ -144,15 +151,16 @@ def rank(
     hint = hessian(base_train, obs, ctx, "train", free=[s.key for s in CORE_SPECS])
     with torch.no_grad():
         p_cur = predict(base_train, obs, scene=ctx.scene)
+    run_off = start_values is not None and _ran_off(model, base_train)
 
     def one(name: str) -> dict | None:
         term = CATALOGUE[name]
         starts = _starts(term, base_train, obs, ctx, start_values)
         if not starts:
             return None
-        if start_values is not None and model is not base_train:
+        if run_off:
             # a grossly misfitting model's noise law is barely determined: the fitting half's
-            # refit may have run far from the all-pixel fit, which is a start too
+            # refit has run far from the all-pixel fit, which is a start too
             starts.append(_try(model, term, initial_values(name, model, obs, ctx), obs, ctx))
             starts = [s for s in starts if s is not None]
         # every core value is free: a current model that misfits has its noise law and FPN
@@ -196,6 +204,21 @@ def rank(
     for r in out:
         r.pop("free")
     return out, base_train
+
+
+def _ran_off(model: DiagnosisModel, half: DiagnosisModel) -> bool:
+    """Whether a value of the noise law of ``half`` (the fitting half's refit) differs from the
+    one of ``model`` (the all-pixel fit) by more than :data:`RUN_OFF_FACTOR`."""
+    if model is half:
+        return False
+    for k in _NOISE_LAW:
+        a, b = abs(model.values.get(k, 0.0)), abs(half.values.get(k, 0.0))
+        if a == 0.0 or b == 0.0:
+            if a != b:
+                return True
+        elif abs(math.log(a / b)) > math.log(RUN_OFF_FACTOR):
+            return True
+    return False
 
 
 def _key(r: dict) -> float:

@@ -19,11 +19,30 @@ from .. import constants as K
 __all__ = ["clipped_noise", "decode_flat_safe", "noise_law", "rician"]
 
 
+class _Laguerre(torch.autograd.Function):
+    """``f(x) = e^-x ((1 + 2x) I_0(x) + 2x I_1(x))`` (``L_1/2(-2x)``), with ``f'(x) = i0e(x) +
+    i1e(x)``: from ``I_0' = I_1`` and ``I_1' = I_0 - I_1 / x``,
+    ``f' = -f + e^-x ((2 + 2x) I_0 + (1 + 2x) I_1) = e^-x (I_0 + I_1)``. The two Bessel
+    functions of the forward pass are kept for the backward one (autograd through
+    ``torch.special.i0e`` / ``i1e`` evaluates both again)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
+        i0, i1 = torch.special.i0e(x), torch.special.i1e(x)
+        ctx.save_for_backward(i0 + i1)
+        return (1 + 2 * x) * i0 + 2 * x * i1
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (slope,) = ctx.saved_tensors
+        return grad * slope
+
+
 def rician(a0: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and sd of ``|a0 + s (xi_1 + j xi_2)|``."""
+    """Mean and sd of ``|a0 + s (xi_1 + j xi_2)|``: the mean is
+    ``s sqrt(pi / 2) L_1/2(-a0^2 / 2 s^2)`` (:class:`_Laguerre`)."""
     x = a0 * a0 / (4.0 * s * s)
-    lag = (1 + 2 * x) * torch.special.i0e(x) + 2 * x * torch.special.i1e(x)
-    mean = s * math.sqrt(math.pi / 2) * lag
+    mean = s * math.sqrt(math.pi / 2) * _Laguerre.apply(x)
     var = (a0 * a0 + 2 * s * s - mean * mean).clamp_min(1e-3 * s * s)
     return mean, torch.sqrt(var)
 
