@@ -12,7 +12,12 @@ import torch
 from scipy import stats
 
 from tof_fpn_torch.diagnosis import diagnose
-from tof_fpn_torch.diagnosis.likelihood import _student_log_density
+from tof_fpn_torch.diagnosis.densities import (
+    CENTRE_Z,
+    gauss_log_density,
+    pixel_centre,
+    student_log_density,
+)
 from tof_fpn_torch.sim import Camera, PhaseJitter, Photons, Simulation, synthetic_scene
 from tof_fpn_torch.sim.effects import student_t
 
@@ -32,10 +37,39 @@ def test_student_log_density_matches_scipy():
     r = torch.from_numpy(rng.standard_normal(50) * 0.02)
     var = torch.from_numpy(rng.uniform(1e-5, 4e-4, 50))
     for dof in (2.6, 3.0, 10.0, 50.0):
-        got = _student_log_density(r, var, 1.0 / dof).numpy()
+        got = student_log_density(r, var, 1.0 / dof).numpy()
         scale = np.sqrt(var.numpy() * (dof - 2) / dof)  # the law's variance is var
         want = stats.t.logpdf(r.numpy(), dof, scale=scale)
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10)
+
+
+def test_gauss_log_density_matches_scipy():
+    rng = np.random.default_rng(4)
+    r = torch.from_numpy(rng.standard_normal(50) * 0.02)
+    var = torch.from_numpy(rng.uniform(1e-5, 4e-4, 50))
+    want = stats.norm.logpdf(r.numpy(), scale=np.sqrt(var.numpy()))
+    np.testing.assert_allclose(gauss_log_density(r, var).numpy(), want, rtol=1e-12, atol=1e-12)
+
+
+def test_pixel_centre_leaves_out_only_readings_beyond_centre_z():
+    """Pixel 0: no reading far from the median, the plain mean. Pixel 1: one reading beyond
+    ``CENTRE_Z`` sd, the mean of the others. Pixel 2: every reading invalid, 0. Pixel 3: an
+    invalid reading is not averaged in."""
+    rng = np.random.default_rng(5)
+    x = torch.from_numpy(rng.standard_normal((9, 4)))
+    valid = torch.ones(9, 4, dtype=torch.bool)
+    sd = torch.ones(1, 4, dtype=torch.float64)
+    x[0, 1] = float(x[1:, 1].median()) + 1.5 * CENTRE_Z  # an outlier
+    valid[:, 2] = False
+    x[3, 3], valid[3, 3] = 1e6, False
+    got = pixel_centre(x, valid, sd).view(-1)
+    assert got.shape == (4,)
+    assert float(got[0]) == pytest.approx(float(x[:, 0].mean()), abs=1e-12)
+    assert float(got[1]) == pytest.approx(float(x[1:, 1].mean()), abs=1e-12)
+    assert float(got[1]) != pytest.approx(float(x[:, 1].mean()), abs=1e-3)
+    assert float(got[2]) == 0.0
+    keep = torch.arange(9) != 3
+    assert float(got[3]) == pytest.approx(float(x[keep, 3].mean()), abs=1e-12)
 
 
 def test_phase_jitter_with_dof_delays_by_a_scaled_student_t():

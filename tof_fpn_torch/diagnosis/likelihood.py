@@ -36,9 +36,9 @@ import torch
 
 from ..constants import SPEED_OF_LIGHT_AIR
 from .data import Observations, pixel_stats
+from .densities import LOG_2PI, gauss_log_density, pixel_centre, student_log_density
 
 __all__ = [
-    "CENTRE_Z",
     "CLIP_SHARE",
     "EDGE_MARGIN",
     "MIX_GRID",
@@ -62,16 +62,11 @@ MIX_GRID: int = 32
 #: Edge pairs with a side whose predicted largest sample reaches this share of the clip level
 #: are left out of the edge mixture (the light mixes before the clip).
 CLIP_SHARE: float = 0.9
-#: Readings farther than this many predicted sd from their pixel's temporal median are left out
-#: of the centre about which a heavy-tailed law's deviations are taken (outliers, not tails).
-CENTRE_Z: float = 6.0
 #: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels.
 SPLIT_BLOCK: int = 8
 #: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
 #: out of the likelihood (the smoothing cannot follow the edge there).
 EDGE_MARGIN: int = 2
-
-_LOG2PI = math.log(2 * math.pi)
 
 
 @dataclass
@@ -140,8 +135,8 @@ def _gauss_ss(n, m, m2, mu, sd, tau, wrap):
         r = r - wrap * torch.round(r / wrap)
     var = sd * sd
     vm = var / n + tau * tau if isinstance(tau, torch.Tensor) else var / n + tau**2
-    out = 0.5 * (torch.log(vm) + _LOG2PI + r * r / vm)
-    out = out + 0.5 * ((n - 1) * (torch.log(var) + _LOG2PI) + m2 / var) + 0.5 * torch.log(n)
+    out = 0.5 * (torch.log(vm) + LOG_2PI + r * r / vm)
+    out = out + 0.5 * ((n - 1) * (torch.log(var) + LOG_2PI) + m2 / var) + 0.5 * torch.log(n)
     return out.sum()
 
 
@@ -314,14 +309,14 @@ def _nll_pooled(obs: Observations, ctx: Context, pred, sel: str) -> torch.Tensor
 
 def _tail_gain(yd, vd, sd, tail, wrap) -> torch.Tensor:
     """The log-likelihood a Student-t law (``dof = 1 / tail``) of the readings about their
-    pixel's temporal mean (:func:`_pixel_centre`) adds to a Gaussian one of the same variance ``sd^2``: the pooled
+    pixel's temporal mean (:func:`~tof_fpn_torch.diagnosis.densities.pixel_centre`) adds to a Gaussian one of the same variance ``sd^2``: the pooled
     Gaussian NLL minus this is the NLL with heavy-tailed readings (a composite likelihood: the
     pixel means, with their random effects, stay Gaussian; 0 as ``dof`` grows)."""
-    dev = yd - _pixel_centre(yd, vd, sd.view(1, -1))
+    dev = yd - pixel_centre(yd, vd, sd.view(1, -1))
     if wrap is not None:
         dev = dev - wrap * torch.round(dev / wrap)
     var = (sd * sd).view(1, -1)
-    return ((_student_log_density(dev, var, tail) - _gauss_log_density(dev, var)) * vd).sum()
+    return ((student_log_density(dev, var, tail) - gauss_log_density(dev, var)) * vd).sum()
 
 
 def _depth_log_density(rd, pred, idd, sd_d, tail) -> torch.Tensor:
@@ -332,39 +327,8 @@ def _depth_log_density(rd, pred, idd, sd_d, tail) -> torch.Tensor:
     tau_d = _pick(pred.tau_d, idd)
     var = sd_d**2 + (tau_d.view(1, -1) ** 2 if isinstance(tau_d, torch.Tensor) else tau_d**2)
     if tail is None:
-        return _gauss_log_density(rd, var)
-    return _student_log_density(rd, var, tail)
-
-
-def _gauss_log_density(r: torch.Tensor, var) -> torch.Tensor:
-    """Log-density of Gaussian residuals ``r`` of variance ``var``."""
-    return -0.5 * r * r / var - 0.5 * torch.log(var) - 0.5 * _LOG2PI
-
-
-def _student_log_density(r: torch.Tensor, var: torch.Tensor, tail) -> torch.Tensor:
-    """Log-density of Student-t residuals ``r`` with ``dof = 1 / tail`` (> 2) degrees of
-    freedom and variance ``var``."""
-    nu = 1.0 / torch.as_tensor(tail, dtype=torch.float64)
-    s2 = var * (nu - 2.0) / nu
-    return (
-        torch.lgamma((nu + 1.0) / 2.0)
-        - torch.lgamma(nu / 2.0)
-        - 0.5 * torch.log(nu * math.pi * s2)
-        - 0.5 * (nu + 1.0) * torch.log1p(r * r / (nu * s2))
-    )
-
-
-def _pixel_centre(x: torch.Tensor, valid: torch.Tensor, sd: torch.Tensor) -> torch.Tensor:
-    """Each pixel's temporal mean (1, P) of its valid readings ``x`` (T, P) within
-    :data:`CENTRE_Z` sd ``sd`` of their median, as data (no gradient): the plain mean where no
-    reading is that far, a centre an outlier does not move where one is."""
-    x, sd = x.detach(), sd.detach()
-    med = torch.where(valid, x, torch.full_like(x, float("nan"))).nanmedian(dim=0).values
-    dev = x - med.nan_to_num(0.0).view(1, -1)
-    keep = valid & (dev.abs() <= CENTRE_Z * sd)
-    k = keep.sum(0).clamp_min(1)
-    out = torch.where(keep, x, torch.zeros_like(x)).sum(0) / k
-    return torch.where(keep.any(0), out, med.nan_to_num(0.0)).view(1, -1)
+        return gauss_log_density(rd, var)
+    return student_log_density(rd, var, tail)
 
 
 def _nll_mixture(ctx: Context, pred, rate, depth: tuple, amp: tuple, tau, tail=None):
@@ -376,13 +340,13 @@ def _nll_mixture(ctx: Context, pred, rate, depth: tuple, amp: tuple, tau, tail=N
     ld = _depth_log_density(xd - mu_d, pred, idd, sd_d, None)
     if tail is not None:  # the readings' tails about their pixel's centre, as without outliers
         yd = xd - (mu_d - mu_d[:1])  # less the per-frame changes of the means
-        dev = yd - _pixel_centre(yd, vd, sd_d)
+        dev = yd - pixel_centre(yd, vd, sd_d)
         if pred.wrap is not None:
             dev = dev - pred.wrap * torch.round(dev / pred.wrap)
         var = sd_d * sd_d
-        ld = ld + _student_log_density(dev, var, tail) - _gauss_log_density(dev, var)
+        ld = ld + student_log_density(dev, var, tail) - gauss_log_density(dev, var)
     va_tot = sd_a**2 + (tau**2 if isinstance(tau, torch.Tensor) else tau**2)
-    la = _gauss_log_density(xa - mu_a, va_tot)
+    la = gauss_log_density(xa - mu_a, va_tot)
     pos = torch.searchsorted(ida, idd)
     lu_d = -math.log(ctx.depth_span)
     lu_a = -math.log(ctx.amp_span)

@@ -32,6 +32,7 @@ __all__ = [
     "OUTLIER_SIGMA",
     "READOUT_KEYS",
     "apply_readout",
+    "random_effect_variance",
     "readout_maps",
     "rotated_residuals",
     "update_readout",
@@ -87,7 +88,7 @@ def readout_maps(model, n: int, gain_e: float):
     return gain_e * maps[0], maps[1]
 
 
-def _variance(beta: torch.Tensor, cov: torch.Tensor) -> float:
+def random_effect_variance(beta: torch.Tensor, cov: torch.Tensor) -> float:
     """Moment estimate of the variance of random effects ``beta`` (C, k) whose estimation
     variances are ``cov`` (C, k), weighted towards the well-determined ones (3 iterations)."""
     ok = torch.isfinite(beta) & torch.isfinite(cov) & (cov > 0) & (cov < 1e20)
@@ -176,7 +177,7 @@ def update_readout(model, obs, ctx, pred, sel: str = "all"):
         lam = torch.full((_NC,), 1e30, dtype=torch.float64)
         s2 = []
         for idx in _GROUPS:
-            v = _variance(beta[:, list(idx)], dcov[:, list(idx)])
+            v = random_effect_variance(beta[:, list(idx)], dcov[:, list(idx)])
             s2.append(v)
             if v > 0:
                 lam[list(idx)] = 1.0 / v

@@ -19,7 +19,16 @@ import torch
 
 from ..params import ParamSpec
 
-__all__ = ["ENTERS", "Chain", "Term", "depth_residuals", "least_squares", "r4", "shrink_to_zero"]
+__all__ = [
+    "ENTERS",
+    "Chain",
+    "ClosedFormMapTerm",
+    "Term",
+    "depth_residuals",
+    "least_squares",
+    "r4",
+    "shrink_to_zero",
+]
 
 #: how a term can enter the model (``Term.enters``) and the hook that makes it so
 ENTERS: dict[str, str] = {
@@ -232,3 +241,27 @@ def depth_residuals(obs, ctx, pred) -> tuple[torch.Tensor, torch.Tensor]:
 def r4(x) -> float:
     """``x`` rounded to 4 decimals, for the report."""
     return round(float(x), 4)
+
+
+class ClosedFormMapTerm(Term):
+    """A member with no scalar parameters: a map (``model.profiles[name]``, its effective degrees
+    of freedom in ``model.values[name + ".dof"]``) estimated in closed form
+    (:meth:`~Term.update_closed_form`) between the L-BFGS rounds. Subclasses set the class
+    attributes and override :meth:`~Term.update_closed_form` and :meth:`~Term.describe`, and
+    set ``gain_map_term`` or override :meth:`~Term.simulator_term`."""
+
+    closed_form = True
+    #: a map that is a gain: the simulator term that applies it (called with ``gain_map=``)
+    gain_map_term: ClassVar[type | None] = None
+
+    def simulator_term(self, v: dict, model):
+        if self.gain_map_term is None:
+            raise NotImplementedError(f"{self.name}: set gain_map_term or override simulator_term")
+        g = model.profiles.get(self.name)
+        return None if g is None else self.gain_map_term(gain_map=g)
+
+    def initial_values(self, model, obs, ctx, pred) -> list[dict]:
+        return [{}]
+
+    def effective_parameters(self, values: dict) -> float:
+        return float(values.get(f"{self.name}.dof", 0.0))

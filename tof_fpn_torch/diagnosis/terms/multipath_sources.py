@@ -52,7 +52,7 @@ from ...sim.multipath import source_step
 from ...sim.relay import mirror_gains, mirror_planes, relay_matrix
 from ..nnls import nnls
 from ..readout import rotated_residuals
-from .base import Term, r4
+from .base import ClosedFormMapTerm, r4
 from .multipath import FIELDS_OF_VIEW, relay_cached
 
 __all__ = [
@@ -288,7 +288,7 @@ def update_sources(model, obs, ctx, pred, sel: str = "all"):
     return out
 
 
-class MultipathSourcesTerm(Term):
+class MultipathSourcesTerm(ClosedFormMapTerm):
     """No scalar parameters: the source weights (``model.profiles["multipath_sources"]``) and the
     geometry are estimated in closed form (:func:`update_sources`)."""
 
@@ -298,7 +298,6 @@ class MultipathSourcesTerm(Term):
     sim_name = "multipath"
     axes = ("depth_mean|amplitude", "depth_mean|depth", "amp_mean|amplitude")
     about = "a second bounce from free sources: each surface patch relays its own share of light"
-    closed_form = True
     slow = True
     profile_keys = (_KEY, _MAP, _GROUPS, _MIRRORS)
 
@@ -321,14 +320,8 @@ class MultipathSourcesTerm(Term):
         t = self.simulator_term(v, model)
         return relay_cached(t, state, chain.units, chain.key, chain.ambient, chain.responsivity)
 
-    def initial_values(self, model, obs, ctx, pred) -> list[dict]:
-        return [{}]
-
     def update_closed_form(self, model, obs, ctx, pred, sel: str):
         return update_sources(model, obs, ctx, pred, sel)
-
-    def effective_parameters(self, values: dict) -> float:
-        return float(values.get(f"{_KEY}.dof", 0.0))
 
     def describe(self, model, obs, pred) -> dict:
         v = model.values

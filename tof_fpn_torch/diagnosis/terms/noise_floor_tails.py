@@ -21,7 +21,7 @@ import math
 import torch
 
 from ...sim import PhaseJitter
-from ..likelihood import _gauss_log_density, _pixel_centre
+from ..densities import gauss_log_density, pixel_centre
 from ..params import SCALE_DEPTH, ParamSpec
 from .base import Term, r4
 
@@ -50,7 +50,7 @@ TAIL_EXCESS_SD: float = 4.0
 def far_readings(obs, ctx, pred, rate=None) -> tuple[int, float]:
     """``(count, Gaussian expectation)`` of the depth readings of the depth pixels farther than
     ``TAIL_Z`` predicted sd from their pixel's temporal mean (outliers left out of it:
-    ``likelihood._pixel_centre``) that the model's outliers (``rate``: the share of frame-pixels
+    ``densities.pixel_centre``) that the model's outliers (``rate``: the share of frame-pixels
     with any value, uniform over the observed depth and amplitude ranges) do not claim, both
     channels' readings together: a jitter of the delay moves the phase alone, an impulse (a hot
     pixel, a corrupted raw sample) lands anywhere in depth and in amplitude."""
@@ -58,16 +58,16 @@ def far_readings(obs, ctx, pred, rate=None) -> tuple[int, float]:
     ok = (obs.valid & ctx.mask_d & (obs.n > 1)).reshape(t, -1)
     sd = pred.sd_d.detach().clamp_min(1e-12).reshape(1, -1)
     x = torch.where(ok, obs.depth.reshape(t, -1), torch.zeros((), dtype=obs.depth.dtype))
-    d = x - _pixel_centre(x, ok, sd)
+    d = x - pixel_centre(x, ok, sd)
     if pred.wrap is not None:
         d = d - pred.wrap * torch.round(d / pred.wrap)
     far = ok & (d.abs() > TAIL_Z * sd)
     if rate is not None:  # the readings the outliers' uniform law explains better are theirs
         sa = pred.sd_a.detach().clamp_min(1e-12).reshape(1, -1)
         xa = torch.where(ok, obs.amplitude.reshape(t, -1), torch.zeros((), dtype=x.dtype))
-        da = xa - _pixel_centre(xa, ok, sa)
+        da = xa - pixel_centre(xa, ok, sa)
         r = float(torch.as_tensor(rate).detach())
-        inlier = math.log1p(-r) + _gauss_log_density(d, sd * sd) + _gauss_log_density(da, sa * sa)
+        inlier = math.log1p(-r) + gauss_log_density(d, sd * sd) + gauss_log_density(da, sa * sa)
         outlier = math.log(r) - math.log(ctx.depth_span) - math.log(ctx.amp_span)
         far &= inlier > outlier
     return int(far.sum()), float(ok.sum()) * math.erfc(TAIL_Z / math.sqrt(2.0))

@@ -27,9 +27,9 @@ import math
 import torch
 
 from ...sim import PixelGain
-from ..readout import OUTLIER_SIGMA, _variance
+from ..readout import OUTLIER_SIGMA, random_effect_variance
 from ..signature import FINE_SCALE_PX
-from .base import Term, r4
+from .base import ClosedFormMapTerm, r4
 
 __all__ = ["PixelGainRowsTerm", "row_gains"]
 
@@ -64,7 +64,7 @@ def row_gains(rel: torch.Tensor, var: torch.Tensor, ok: torch.Tensor):
     b = torch.where(has, (wt * torch.where(ok, rel, 0.0)).sum(1) / sw.clamp_min(1e-300), 0.0)
     c = torch.where(has, 1.0 / sw.clamp_min(1e-300), torch.full_like(sw, 1e30))
     b = b - _smooth_rows(b, has, FINE_SCALE_PX)
-    s2 = _variance(b[has].view(-1, 1), c[has].view(-1, 1))
+    s2 = random_effect_variance(b[has].view(-1, 1), c[has].view(-1, 1))
     if s2 <= 0:
         return torch.zeros_like(b), 0.0
     p, s2 = _slab_weights(b[has], c[has], s2)
@@ -115,7 +115,7 @@ def update_rows(model, obs, ctx, pred, sel: str = "all"):
     return out
 
 
-class PixelGainRowsTerm(Term):
+class PixelGainRowsTerm(ClosedFormMapTerm):
     """No scalar parameters: the row gains (``model.profiles["pixel_gain_rows"]``, a gain map)
     are estimated in closed form (:func:`update_rows`)."""
 
@@ -125,21 +125,11 @@ class PixelGainRowsTerm(Term):
     sim_name = "pixel_gain"
     axes = ("amp_mean|row",)
     about = "a gain per sensor row, fine from row to row (row non-uniformity of the PRNU)"
-    closed_form = True
     profile_keys = (_KEY,)
-
-    def simulator_term(self, v: dict, model):
-        g = model.profiles.get(_KEY)
-        return None if g is None else PixelGain(gain_map=g)
-
-    def initial_values(self, model, obs, ctx, pred) -> list[dict]:
-        return [{}]
+    gain_map_term = PixelGain
 
     def update_closed_form(self, model, obs, ctx, pred, sel: str):
         return update_rows(model, obs, ctx, pred, sel)
-
-    def effective_parameters(self, values: dict) -> float:
-        return float(values.get(f"{_KEY}.dof", 0.0))
 
     def describe(self, model, obs, pred) -> dict:
         g = model.profiles.get(_KEY)

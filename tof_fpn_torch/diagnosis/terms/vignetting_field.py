@@ -24,7 +24,7 @@ import torch
 
 from ...sim import Vignetting
 from ..nnls import nnls
-from .base import Term, r4
+from .base import ClosedFormMapTerm, r4
 
 __all__ = ["RAMPS", "SECTORS", "VignettingFieldTerm", "loss_basis"]
 
@@ -87,7 +87,7 @@ def update_field(model, obs, ctx, pred, sel: str = "all"):
     return out
 
 
-class VignettingFieldTerm(Term):
+class VignettingFieldTerm(ClosedFormMapTerm):
     """No scalar parameters: the relative illumination (``model.profiles["vignetting_field"]``)
     is estimated in closed form (:func:`update_field`)."""
 
@@ -97,21 +97,11 @@ class VignettingFieldTerm(Term):
     sim_name = "vignetting"
     axes = ("amp_mean|radius",)
     about = "light lost towards the edge along every ray from the centre, free in angle"
-    closed_form = True
     profile_keys = (_KEY,)
-
-    def simulator_term(self, v: dict, model):
-        g = model.profiles.get(_KEY)
-        return None if g is None else Vignetting(gain_map=g)
-
-    def initial_values(self, model, obs, ctx, pred) -> list[dict]:
-        return [{}]
+    gain_map_term = Vignetting
 
     def update_closed_form(self, model, obs, ctx, pred, sel: str):
         return update_field(model, obs, ctx, pred, sel)
-
-    def effective_parameters(self, values: dict) -> float:
-        return float(values.get(f"{_KEY}.dof", 0.0))
 
     def describe(self, model, obs, pred) -> dict:
         g = model.profiles.get(_KEY)
