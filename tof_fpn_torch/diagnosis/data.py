@@ -24,7 +24,18 @@ from .. import constants as K
 from ..io import Recording, SceneData
 from ..sim import Camera, Scene
 
-__all__ = ["Observations", "estimate_scene", "observe", "pixel_stats", "stated_clip_level"]
+__all__ = [
+    "MIN_FRAME_SIDE",
+    "Observations",
+    "estimate_scene",
+    "observe",
+    "pixel_stats",
+    "stated_clip_level",
+]
+
+#: The smallest frame side (px) the diagnosis takes: its split into fitting and held-out pixels
+#: and its column and row statistics need a few pixels each way.
+MIN_FRAME_SIDE: int = 8
 
 
 @dataclass
@@ -203,8 +214,11 @@ def observe(recording: Recording, scene=None) -> Observations:
     depth = recording.depth[:, 0].to(torch.float64)
     amp = recording.amplitude[:, 0].to(torch.float64)
     t, h, w = depth.shape
-    if h < 8 or w < 8:
-        raise ValueError(f"recording frames are {h}x{w}; the diagnosis needs at least 8x8 pixels")
+    if h < MIN_FRAME_SIDE or w < MIN_FRAME_SIDE:
+        m = MIN_FRAME_SIDE
+        raise ValueError(
+            f"recording frames are {h}x{w}; the diagnosis needs at least {m}x{m} pixels"
+        )
     valid = torch.isfinite(depth) & (depth > 0) & torch.isfinite(amp) & (amp >= 0)
     empty = [i for i in range(t) if not bool(valid[i].any())]
     if len(empty) == t:

@@ -62,7 +62,8 @@ MIX_GRID: int = 32
 #: Edge pairs with a side whose predicted largest sample reaches this share of the clip level
 #: are left out of the edge mixture (the light mixes before the clip).
 CLIP_SHARE: float = 0.9
-#: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels.
+#: Side (px) of the blocks of the checkerboard split into fitting and held-out pixels (smaller
+#: on a frame whose shorter side is under three blocks, so that both halves have pixels).
 SPLIT_BLOCK: int = 8
 #: With an estimated scene, pixels within this many px of a depth edge of the estimate are left
 #: out of the likelihood (the smoothing cannot follow the edge there).
@@ -113,7 +114,7 @@ def make_context(obs: Observations, snr: torch.Tensor) -> Context:
     mask_d = base & (snr >= MIN_SNR_DEPTH)
     mask_a = base & (snr >= MIN_SNR_AMPLITUDE)
     h, w = obs.shape
-    b = SPLIT_BLOCK
+    b = max(1, min(SPLIT_BLOCK, min(h, w) // 3))
     yy = torch.arange(h).view(h, 1) // b
     xx = torch.arange(w).view(1, w) // b
     train = ((yy + xx) % 2) == 0
