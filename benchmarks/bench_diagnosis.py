@@ -108,9 +108,10 @@ def lens_blur_outside(sigma: float) -> float:
 
 
 def fitted_value(effect: str, params: dict, values: dict, frames: int):
-    """The fitted size of ``effect`` in the generator's unit, from the catalogue member's
-    ``params``; None when the effect was named through a flexible member (another functional
-    form, other parameters): its error is not counted."""
+    """The fitted size of ``effect`` in the generator's unit from the report's ``params`` (the
+    catalogue member's quantities, which some flexible members report too, e.g.
+    ``peak_to_peak_mm``); None when the named terms do not report it (a flexible member whose
+    parameters are of another form): its error is not counted."""
     try:
         return _catalogue_value(effect, params, values, frames)
     except KeyError:
@@ -252,7 +253,7 @@ def summary(results: list[dict]) -> dict:
             "top1_at_or_above_detection": sum(r["top1"] == e for r in above) / max(len(above), 1),
             "top1_by_factor": by_factor,
             "median_relative_parameter_error": float(np.median(rec)) if rec else None,
-            # recordings whose parameter error counts (named through the catalogue's member)
+            # recordings whose parameter error counts (the named terms report the quantity)
             "parameter_errors_counted": len(rec),
             "median_heldout_nll_gain_per_observation": float(np.median(gain)) if gain else None,
             "wrong_top1": sorted({r["top1"] for r in rs if r["top1"] != e}),

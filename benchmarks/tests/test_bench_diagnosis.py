@@ -1,5 +1,5 @@
-"""The concealed-effect benchmark's parameter error: counted for the catalogue's member, not for
-an effect named through a flexible member (whose parameters are of another form)."""
+"""The concealed-effect benchmark's parameter error: counted where the named terms report the
+generator's quantity, not where a flexible member's parameters are of another form."""
 
 from __future__ import annotations
 
