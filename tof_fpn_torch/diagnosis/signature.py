@@ -35,6 +35,7 @@ import torch.nn.functional as F
 from .. import constants as K
 
 __all__ = [
+    "COURSE_Z",
     "DEPTH_LAYER_M",
     "FINE_SCALE_PX",
     "OUTLIER_Z",
@@ -49,6 +50,9 @@ FINE_SCALE_PX: float = 12.0
 DEPTH_LAYER_M: float = 0.1
 #: a frame-pixel this many sd from the model is an outlier
 OUTLIER_Z: float = 5.0
+#: a frames' course is established when its covariance between two halves of the pixels is
+#: this many sd above zero
+COURSE_Z: float = 3.0
 
 
 def _blur(x: torch.Tensor, s: float) -> torch.Tensor:
@@ -144,9 +148,22 @@ def sporadic_share(obs, ctx, pred) -> float | None:
 
 
 def common_share(obs, ctx, pred) -> float | None:
-    """The frames' variance about the recording's course of the median residual over that of
-    the mean residual (depth and relative amplitude, each in units of its typical per-frame
-    noise), in [0, 1]; None for fewer than 3 frames."""
+    """The part of the frames' course that every pixel shares: the course of the frames' median
+    residual against that of their mean residual (depth and relative amplitude, each in units of
+    its typical per-frame noise), in [0, 1]; None for fewer than 3 frames or no course at all.
+
+    Each course is taken on two disjoint halves of the pixels (alternate pixels of the flattened
+    frame), and its size is the covariance over the frames of the two halves' courses: the
+    halves' own sampling noise is independent and drops out, so a drift small beside the
+    per-pixel noise keeps its full share however heavy the noise's tails (with the plain
+    variances, the mean's larger sampling noise under heavy tails lowered a real drift's share);
+    a few outlying pixels that fire in the same frames still move both halves' means together,
+    not their medians. The share is taken only where the means' course is established: their
+    covariance at least :data:`COURSE_Z` times its sd under independent halves
+    (``sqrt(sum_f v_a,f v_b,f)``, ``v`` the variance of a half's frame mean from its pixels'
+    noise in time); a course within its sampling noise (a drift that only the
+    likelihood, weighing every pixel by its precision, resolves) says nothing about its
+    signature, and the share is None (the held-out gain decides alone)."""
     if obs.frames < 3:
         return None
     m = ctx.mask_d & ctx.mask_a
@@ -158,13 +175,31 @@ def common_share(obs, ctx, pred) -> float | None:
     mu = pred.mu_a.detach().clamp_min(1e-12)
     a = (obs.amplitude - mu) / mu
     ok = obs.valid & m
-    num = den = 0.0
+    num = den = null = 0.0
     for r, sd in ((d, pred.sd_d.detach()), (a, pred.sd_a.detach() / mu)):
         x = torch.where(ok, r, torch.nan).reshape(obs.frames, -1)
         scale = float(sd[m].median()) ** 2 or 1.0
-        mean, med = x.nanmean(1), x.nanmedian(1).values
-        num += float(((med - med.nanmean()) ** 2).nansum()) / scale
-        den += float(((mean - mean.nanmean()) ** 2).nansum()) / scale
-    if not math.isfinite(den) or den <= 0:
+        half = (x[:, 0::2], x[:, 1::2])
+        mean = [_centred(h.nanmean(1)) for h in half]
+        med = [_centred(h.nanmedian(1).values) for h in half]
+        num += float((med[0] * med[1]).nansum()) / scale
+        den += float((mean[0] * mean[1]).nansum()) / scale
+        va, vb = _sampling_variance(half[0]), _sampling_variance(half[1])
+        null += float((va * vb).nansum()) / scale**2
+    if not (math.isfinite(den) and math.isfinite(num)) or den <= COURSE_Z * math.sqrt(null):
         return None
     return min(max(num / den, 0.0), 1.0)
+
+
+def _sampling_variance(x: torch.Tensor) -> torch.Tensor:
+    """Per frame, the variance of the mean of ``x`` (F, N) from its pixels' noise in time: the
+    spread of each pixel about its own mean over the frames (a misfit fixed in time does not
+    move the course), over the frame's valid pixels."""
+    n = torch.isfinite(x).sum(1).clamp_min(1)
+    dev = x - x.nanmean(0, keepdim=True)
+    return float(dev.pow(2).nanmean()) / n
+
+
+def _centred(x: torch.Tensor) -> torch.Tensor:
+    """A course about its mean over the frames (NaN frames stay NaN)."""
+    return x - x.nanmean()

@@ -21,7 +21,7 @@ class TemporalDriftTerm(Term):
     name = "temporal_drift"
     specs = (
         ParamSpec("temporal_drift.depth_step", "lin", SCALE_DEPTH, "m"),
-        ParamSpec("temporal_drift.amplitude_step", "lin", 0.01),
+        ParamSpec("temporal_drift.amplitude_step", "relgain", 0.01),
         ParamSpec("temporal_drift.time_constant", "log", 1.0, "s"),
     )
     enters = "frames"
