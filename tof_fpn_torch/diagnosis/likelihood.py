@@ -30,7 +30,7 @@ depth edges with a free share (``Term.edge_mixture``) turn the temporal mean of 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 
@@ -159,10 +159,34 @@ def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all")
         clip = next((c for c in (t.clip_level(v) for t in terms) if c is not None), None)
         if clip is not None:  # it selects pixels: no graph
             clip = float(torch.as_tensor(clip).detach())
+        if per_frame:  # the mixture's cost with no mixing must be the pixel's cost above
+            obs, pred = _frame_adjusted(obs, pred, per_frame)
         out = out + _edge_mixture(
             obs, ctx, pred, mixed, sel, model.camera.modulation_frequency, clip
         )
     return out
+
+
+def _frame_adjusted(obs: Observations, pred, per_frame: list):
+    """The pixels' statistics and predictions with the per-frame means taken out as
+    :func:`_nll_frames` takes them out (each frame moved to frame 0's mean), so that the edge
+    mixture replaces the cost the frames counted. (With the pooled statistics instead, a drift
+    that left frame 0's prediction far off made the mixture's no-mixing cost, which it
+    subtracts, as large as it liked: the NLL fell without bound.)"""
+    t = obs.frames
+    shift = torch.zeros(t, 1, 1, dtype=torch.float64)
+    factor = torch.ones(t, 1, 1, dtype=torch.float64)
+    for s, f in per_frame:
+        shift = shift + torch.as_tensor(s, dtype=torch.float64).reshape(-1, 1, 1)
+        factor = factor * torch.as_tensor(f, dtype=torch.float64).reshape(-1, 1, 1)
+    depth = obs.depth - (shift - shift[:1])
+    amp = obs.amplitude - pred.mu_a * (factor - factor[:1])
+    n, m_d, m2_d = pixel_stats(torch.where(obs.valid, depth, torch.zeros_like(depth)), obs.valid)
+    _, m_a, m2_a = pixel_stats(torch.where(obs.valid, amp, torch.zeros_like(amp)), obs.valid)
+    obs = replace(obs, n=n, m_d=m_d, m2_d=m2_d, m_a=m_a, m2_a=m2_a)
+    f0 = factor[0, 0, 0]
+    pred = replace(pred, mu_d=pred.mu_d + shift[0, 0, 0], mu_a=pred.mu_a * f0, a0=pred.a0 * f0)
+    return obs, pred
 
 
 def _nll_frames(obs: Observations, ctx: Context, pred, sel: str, per_frame: list, rate, tail=None):
