@@ -67,3 +67,19 @@ def test_simulator_term_accepts_every_value_the_fit_can_reach(setup, name):  # n
                 term.simulator_term(moved.values, moved)
             except ValueError as err:
                 pytest.fail(f"{s.key} = {value!r} (u = {u}): {err}")
+
+
+def test_whitening_survives_an_undefined_curvature():
+    """A parameter whose gradient is infinite at the start (a square root at zero): the
+    whitening is finite (it was NaN, and on a larger Hessian LAPACK's eigh raised and stopped a
+    diagnosis) and that parameter moves by its own scale."""
+    from tof_fpn_torch.diagnosis.fit import _whitening
+
+    def objective(u):
+        return u[0] ** 2 + torch.sqrt(u[1].abs()) + u[2] ** 2
+
+    f0, tmat = _whitening(objective, torch.tensor([0.3, 0.0, 0.2], dtype=torch.float64))
+    assert f0 == pytest.approx(0.13)
+    assert bool(torch.isfinite(tmat).all())
+    assert float(tmat[1].abs().max()) == pytest.approx(1.0)
+    assert float(tmat[:, torch.argmax(tmat[1].abs())].abs().sum()) == pytest.approx(1.0)

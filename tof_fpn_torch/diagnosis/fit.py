@@ -307,7 +307,17 @@ def _whitening(objective, u0: torch.Tensor, known=None):
     if f0 is None:
         return None, None
     n = u0.numel()
-    lam, vec = torch.linalg.eigh(hess)
+    # a parameter whose curvature is undefined here (a gradient that is infinite at ``u0``,
+    # e.g. a square root at zero) is scaled by its spec alone: a unit step is one scale
+    bad = ~torch.isfinite(torch.diagonal(hess))
+    if not bool(torch.isfinite(hess).all()):
+        hess = torch.where(bad.view(-1, 1) | bad.view(1, -1), torch.zeros_like(hess), hess)
+        hess = torch.nan_to_num(hess, nan=0.0, posinf=0.0, neginf=0.0)
+        hess = hess + torch.diag(bad.to(hess.dtype))
+    try:
+        lam, vec = torch.linalg.eigh(hess)
+    except torch.linalg.LinAlgError:  # too ill-conditioned for LAPACK: the diagonal alone
+        lam, vec = torch.diagonal(hess).clone(), torch.eye(n, dtype=torch.float64)
     top = float(lam.abs().max()) if n else 1.0
     lam = lam.abs().clamp_min(max(top, 1e-30) * 1e-8)
     return f0, vec / torch.sqrt(lam).view(1, n)
