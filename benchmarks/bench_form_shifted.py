@@ -17,12 +17,14 @@ share effects a share stated by hand (impulsive 0.1 % of frame-pixels, saturatio
 wrapping 1 % of the scene, flying A 25 % of the depth-edge pixels mixed).
 
 Seeds: development and pilots used 10000-19999 (``--pilot`` defaults to 10000); the benchmark's
-default range starts at 110000 and was never run during development (70000 and 75000 once ran
+default range starts at 120000 and was never run during development (70000 and 75000 once ran
 at 24 x 32 px in a check of ``--resume``; 80000 on is spent: a first run there was stopped at
 160 recordings, docs/figures/diagnosis_form_shifted_seeds80000.md; 90000-90022 are spent: a
 run there was stopped after 23 amplitude-bias recordings, to mend the speed of the diagnosis
 before the run; 100000 on are spent: the complete run on the code of commit feda3b8,
-docs/figures/diagnosis_form_shifted_seeds100000.md).
+docs/figures/diagnosis_form_shifted_seeds100000.md; 110000-110121 are spent: a run there
+stopped after 120 recordings on a crash of the diagnosis, since mended,
+docs/figures/diagnosis_form_shifted_seeds110000.md).
 
     python benchmarks/bench_form_shifted.py --workers 2            # 13 x 2 x 2 x 6 + 24 nulls
     python benchmarks/bench_form_shifted.py --workers 2 --resume   # go on with a run cut short
@@ -76,7 +78,7 @@ DETECTION: dict[tuple[str, str], float] = {
 SHARE_SET = {"impulsive_pixels", "saturation", "phase_wrapping"}  # magnitudes set by hand
 FACTORS = (1.0, 2.0)
 H, W, T = 120, 160, 24
-FINAL_SEEDS, DEV_SEEDS = 110000, 10000
+FINAL_SEEDS, DEV_SEEDS = 120000, 10000
 
 
 def make_job(effect, form, factor, seed, kind, size, raw=False) -> dict:
@@ -278,7 +280,7 @@ def parse():
         help="recordings per effect, form, factor (6; pilot 1)",
     )
     ap.add_argument("--nulls", type=int, default=24)
-    ap.add_argument("--seed-offset", type=int, default=None, help="default 110000 (pilot 10000)")
+    ap.add_argument("--seed-offset", type=int, default=None, help="default 120000 (pilot 10000)")
     ap.add_argument("--size", default=f"{H}x{W}", help="HxW")
     ap.add_argument("--frames", type=int, default=T)
     ap.add_argument("--workers", type=int, default=2)
