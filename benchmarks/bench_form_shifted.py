@@ -30,6 +30,7 @@ docs/figures/diagnosis_form_shifted_seeds110000.md).
     python benchmarks/bench_form_shifted.py --workers 2 --resume   # go on with a run cut short
     python benchmarks/bench_form_shifted.py --pilot multipath B     # a few recordings, printed
     python benchmarks/bench_form_shifted.py --calibrate             # the 1x magnitudes' snr
+    python benchmarks/bench_form_shifted.py --table                 # table and totals of --out
 """
 
 from __future__ import annotations
@@ -163,7 +164,9 @@ def summary(results: list[dict]) -> dict:
         if r["effect"] is None:
             continue
         key = f"{r['effect']} {r['form']}"
-        c = cells.setdefault(key, {"recordings": 0, "top1": 0, "by_factor": {}, "extra": 0})
+        c = cells.setdefault(
+            key, {"recordings": 0, "top1": 0, "by_factor": {}, "extra": 0, "alone": 0}
+        )
         c.setdefault("misses", [])
         c["recordings"] += 1
         hit = r["top1"] == r["expected"]
@@ -172,6 +175,7 @@ def summary(results: list[dict]) -> dict:
         f[0] += hit
         f[1] += 1
         c["extra"] += r["expected"] in r["found"] and len(r["found"]) > 1
+        c["alone"] += r["found"] == [r["expected"]]
         if not hit:
             c["misses"].append({"scene": r["scene"], "factor": r["factor"], "found": r["found"]})
         c.setdefault("snr", []).append(r["truth"].get("snr"))
@@ -191,6 +195,71 @@ def summary(results: list[dict]) -> dict:
         },
         "seconds_median": float(np.median([r["seconds"] for r in results])) if results else None,
     }
+
+
+def lower_bound(k: int, n: int, level: float = 0.95) -> float:
+    """One-sided Clopper-Pearson lower bound of a rate seen ``k`` times in ``n``."""
+    from scipy.stats import beta
+
+    return 0.0 if k == 0 else float(beta.ppf(1.0 - level, k, n - k + 1))
+
+
+def upper_bound(k: int, n: int, level: float = 0.95) -> float:
+    """One-sided Clopper-Pearson upper bound of a rate seen ``k`` times in ``n``."""
+    from scipy.stats import beta
+
+    return 1.0 if k == n else float(beta.ppf(level, k + 1, n - k))
+
+
+def totals(summ: dict) -> dict:
+    """Over all effects: top-1, per effect (both forms), recordings naming only the planted
+    effect, null false alarms; with the one-sided 95 % Clopper-Pearson bounds."""
+    cells = summ["cells"].items()
+    n = sum(c["recordings"] for _, c in cells)
+    top1 = sum(c["top1"] for _, c in cells)
+    alone = sum(c.get("alone", 0) for _, c in cells)
+    per_effect: dict[str, list[int]] = {}
+    for key, c in cells:
+        e = per_effect.setdefault(key.split()[0], [0, 0])
+        e[0] += c["top1"]
+        e[1] += c["recordings"]
+    worst = min(per_effect.items(), key=lambda kv: kv[1][0] / kv[1][1]) if per_effect else None
+    nul = summ["null"]
+    return {
+        "recordings": n,
+        "top1": top1,
+        "top1_lower": lower_bound(top1, n) if n else None,
+        "per_effect": per_effect,
+        "worst_effect": worst[0] if worst else None,
+        "worst_effect_lower": lower_bound(*worst[1]) if worst else None,
+        "alone": alone,
+        "alone_lower": lower_bound(alone, n) if n else None,
+        "nulls": nul["recordings"],
+        "false_alarms": nul["false_alarms"],
+        "false_alarm_upper": (
+            upper_bound(nul["false_alarms"], nul["recordings"]) if nul["recordings"] else None
+        ),
+    }
+
+
+def totals_text(t: dict) -> str:
+    if not t["recordings"]:
+        return ""
+    by = ", ".join(f"{e} {k}/{m}" for e, (k, m) in t["per_effect"].items())
+    lines = [
+        f"Top-1 {t['top1']}/{t['recordings']} ({100 * t['top1'] / t['recordings']:.1f} %, "
+        f">= {100 * t['top1_lower']:.1f} %); by effect: {by}; lowest {t['worst_effect']} "
+        f"(>= {100 * t['worst_effect_lower']:.0f} %).",
+        f"Only the planted effect named: {t['alone']}/{t['recordings']} "
+        f"({100 * t['alone'] / t['recordings']:.1f} %, >= {100 * t['alone_lower']:.1f} %).",
+    ]
+    if t["nulls"]:
+        lines.append(
+            f"False alarms: {t['false_alarms']}/{t['nulls']} nulls "
+            f"(rate <= {100 * t['false_alarm_upper']:.1f} %)."
+        )
+    lines.append("Bounds: one-sided 95 % Clopper-Pearson.")
+    return "\n".join(lines) + "\n"
 
 
 def table(summ: dict) -> str:
@@ -216,7 +285,7 @@ def table(summ: dict) -> str:
         f"| null | | | {n['recordings'] - n['false_alarms']}/{n['recordings']} named none | | | "
         f"{', '.join(n['named'])} | | |"
     )
-    return "\n".join(rows) + "\n"
+    return "\n".join(rows) + "\n\n" + totals_text(totals(summ))
 
 
 def save(out: str, results: list[dict], t0: float, complete: bool) -> dict:
@@ -288,6 +357,11 @@ def parse():
     ap.add_argument("--pilot", nargs=2, metavar=("EFFECT", "FORM"), default=None)
     ap.add_argument("--calibrate", action="store_true")
     ap.add_argument(
+        "--table",
+        action="store_true",
+        help="print the table and totals of the recordings in --out (and rewrite its .md); no run",
+    )
+    ap.add_argument(
         "--resume",
         action="store_true",
         help="keep the recordings already in --out (same jobs) and run only the others",
@@ -315,6 +389,11 @@ def main() -> None:
     size = (h, w, a.frames)
     if a.calibrate:
         print(json.dumps(calibrate(size), indent=1))
+        return
+    if a.table:
+        summ = summary(json.loads(Path(a.out).read_text())["results"])
+        Path(a.out).with_suffix(".md").write_text(table(summ))
+        print(table(summ))
         return
     if a.per_cell is None:
         a.per_cell = 1 if a.pilot else 6
