@@ -219,7 +219,7 @@ def totals(summ: dict) -> dict:
     cells = summ["cells"].items()
     n = sum(c["recordings"] for _, c in cells)
     top1 = sum(c["top1"] for _, c in cells)
-    alone = sum(c.get("alone", 0) for _, c in cells)
+    alone = sum(c["alone"] for _, c in cells)
     per_effect: dict[str, list[int]] = {}
     for key, c in cells:
         e = per_effect.setdefault(key.split()[0], [0, 0])

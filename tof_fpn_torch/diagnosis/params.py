@@ -6,8 +6,9 @@ scale: ``lin`` (value = u * scale, any sign), ``log`` (value = scale * e^u, > 0)
 ``u * scale`` near zero: a relative change of a level, which cannot take the level to zero or
 below), ``abs`` (value = scale |u|, >= 0, linear near zero) or ``rootabs`` (value =
 sqrt(scale |u|), >= 0: a standard deviation whose variance is linear in ``u``, so that the
-optimiser does not stall on the plateau a logarithm or a softplus has near zero). The model stores physical values; the fit works on ``u`` so that one step of the optimiser
-is about one scale. A parameter that is a charge (e-) is marked ``charge``: while the conversion
+optimiser does not stall on the plateau a logarithm or a softplus has near zero). The model
+stores physical values; the fit works on ``u`` so that one step of the optimiser is about one
+scale. A parameter that is a charge (e-) is marked ``charge``: while the conversion
 gain is fitted it moves with it, so that its value in DN stays put (decorrelated variables,
 :func:`~tof_fpn_torch.diagnosis.fit.fit`).
 """
