@@ -81,11 +81,11 @@ def test_defaults_are_the_package_defaults():
         ({"pipeline": {"notch": "off", "fusion": "camera"}}, "needs notch"),
         ({"pipeline": {"fusion": "manual"}}, "needs low and high"),
         ({"files": {"batch": 0}}, "batch must be an int >= 1"),
-        ({"notch": {"rho": -1.0}}, "rho must be > 0"),
+        ({"notch": {"rho": -1.0}}, "rho must be a finite number > 0, got -1.0"),
         ({"notch": {"gate": "yes"}}, "gate must be true or false"),
         ({"pipeline": {"stage": "best"}}, "stage must be one of \\['auto', 'paper'\\]"),
         ({"files": {"rounding": "up"}}, "rounding must be one of"),
-        ({"files": {"output_scale": 0}}, "output_scale must be > 0"),
+        ({"files": {"output_scale": 0}}, "output_scale must be a finite number > 0, got 0"),
     ],
 )
 def test_bad_config_names_key_value_allowed(data, needle):
@@ -116,15 +116,15 @@ def test_flags_override_the_file(tmp_path):
 def test_each_stage_subset_builds_what_it_says():
     d, a = _frames()
     empty = build_pipeline(CleanConfig(stage="paper", notch="off"))
-    assert empty.fpn is None and empty.denoiser is None and torch.equal(empty(d, a), d)
+    assert empty.stage("fpn") is None and empty.stage("denoise") is None and torch.equal(empty(d, a)[0], d)
     only = build_pipeline(CleanConfig(notch="off", destripe="columns"))
-    assert only.fpn.filter is None and isinstance(only.fpn.destripe, Destripe)
+    assert only.stage("fpn").filter is None and isinstance(only.stage("fpn").destripe, Destripe)
     full = build_pipeline(CleanConfig(stage="paper", destripe="rows", denoise="nlm"))
     info = describe(full)
     assert info["notch"]["order"] == K.DEFAULT_ORDER and info["fusion"]["low"] == K.FUSION_LOW
-    assert isinstance(full.denoiser, NonLocalMeans) and info["destripe"].startswith("dim=(-2,)")
+    assert isinstance(full.stage("denoise"), NonLocalMeans) and info["destripe"].startswith("dim=(-2,)")
     no_fusion = build_pipeline(CleanConfig(stage="paper", fusion="off", gate=False))
-    assert no_fusion.fpn.fusion is None and no_fusion.fpn.gate is False
+    assert no_fusion.stage("fpn").fusion is None and no_fusion.stage("fpn").gate is False
 
 
 def test_data_stages_are_measured_on_the_calibration_frames():
@@ -137,8 +137,8 @@ def test_data_stages_are_measured_on_the_calibration_frames():
 
     p = build_pipeline(CleanConfig(), calib)  # the default: every piece measured
     assert len(calls) == 1  # read once per build
-    assert any(abs(w - math.pi) < 0.05 for w in p.fpn.filter.notches)
-    assert p.fpn.fusion is not None and p.fpn.fusion.low != K.FUSION_LOW
+    assert any(abs(w - math.pi) < 0.05 for w in p.stage("fpn").filter.notches)
+    assert p.stage("fpn").fusion is not None and p.stage("fpn").fusion.low != K.FUSION_LOW
     g = torch.Generator().manual_seed(1)
     offsets = (
         2.0 + 0.004 * torch.randn(64, generator=g) + 0.002 * torch.randn(4, 1, 40, 64, generator=g)
@@ -147,18 +147,18 @@ def test_data_stages_are_measured_on_the_calibration_frames():
         auto = build_pipeline(
             CleanConfig(notch=notch, destripe="auto"), lambda: Calibration(offsets, a)
         )
-        assert isinstance(auto.fpn.destripe, Destripe), notch
+        assert isinstance(auto.stage("fpn").destripe, Destripe), notch
     flat = build_pipeline(CleanConfig(), lambda: Calibration(d * 0 + 2.0, a))
-    assert flat.fpn is None  # nothing to remove: no stage
+    assert flat.stage("fpn") is None  # nothing to remove: no stage
     with pytest.raises(ValueError, match="no calibration frames"):
         build_pipeline(CleanConfig(stage="paper", fusion="data"))
     # fusion = camera: the files' camera profile, unless one is configured
     adi = build_pipeline(
         CleanConfig(notch="design", destripe="off"), lambda: Calibration(d, a, "adtf3175")
     )
-    assert adi.fpn.fusion.low == cameras.profile("adtf3175").fusion_low
+    assert adi.stage("fpn").fusion.low == cameras.profile("adtf3175").fusion_low
     cc = build_pipeline(CleanConfig(stage="paper"), lambda: Calibration(d, a, "adtf3175"))
-    assert cc.fpn.fusion.low == K.FUSION_LOW
+    assert cc.stage("fpn").fusion.low == K.FUSION_LOW
 
 
 def test_denoiser_registry_takes_new_names():
@@ -178,7 +178,7 @@ def test_denoiser_registry_takes_new_names():
             )
         )
         assert torch.equal(
-            p(torch.ones(1, 1, 2, 2), torch.ones(1, 1, 2, 2)), torch.full((1, 1, 2, 2), 2.0)
+            p(torch.ones(1, 1, 2, 2), torch.ones(1, 1, 2, 2))[0], torch.full((1, 1, 2, 2), 2.0)
         )
         with pytest.raises(ValueError, match="unknown option.*'size'.*allowed.*factor"):
             build_pipeline(

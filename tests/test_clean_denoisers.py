@@ -12,7 +12,6 @@ from tof_fpn_torch import denoise
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.clean import DENOISERS, CleanConfig, build_pipeline
 from tof_fpn_torch.cli import main
-from tof_fpn_torch.cli.clean import DENOISE_CHOICES
 
 
 def _noisy_frame(seed: int = 0, h: int = 40, w: int = 48):
@@ -30,7 +29,6 @@ def _noisy_frame(seed: int = 0, h: int = 40, w: int = 48):
 
 def test_clean_offers_every_registered_name():
     assert set(denoise.names()) <= set(DENOISERS)
-    assert set(denoise.names()) <= set(DENOISE_CHOICES)
     for name in denoise.names():
         assert DENOISERS[name] is denoise.module_class(name)
 
@@ -39,8 +37,8 @@ def test_clean_offers_every_registered_name():
 def test_each_denoiser_runs_in_the_pipeline_and_lowers_the_error(name):
     depth, amp, truth, holes = _noisy_frame()
     pipe = build_pipeline(CleanConfig(stage="paper", notch="off", denoise=name))
-    assert isinstance(pipe.denoiser, denoise.module_class(name)) and pipe.fpn is None
-    out = pipe(depth, amp)
+    assert isinstance(pipe.stage("denoise"), denoise.module_class(name)) and pipe.stage("fpn") is None
+    out, _ = pipe(depth, amp)
     assert out.shape == depth.shape and out.dtype == depth.dtype
     assert torch.isnan(out[0, 0][holes]).all()  # invalid pixels stay invalid
     valid = ~holes
@@ -56,7 +54,7 @@ def test_aliases_and_options_reach_the_denoiser():
             stage="paper", notch="off", denoise="Sliding_DCT", denoise_options={"block_size": 8}
         )
     )
-    assert isinstance(pipe.denoiser, denoise.SlidingDCT)
+    assert isinstance(pipe.stage("denoise"), denoise.SlidingDCT)
     with pytest.raises(ValueError, match="unknown option.*'bogus'"):
         build_pipeline(
             CleanConfig(stage="paper", notch="off", denoise="bm3d", denoise_options={"bogus": 1})
@@ -100,7 +98,7 @@ def test_one_registry_for_clean_and_denoise():
         pipe = build_pipeline(
             CleanConfig(stage="paper", notch="off", denoise="scale_it", denoise_options={})
         )
-        assert isinstance(pipe.denoiser, Scale) and not denoise.scriptable("scale_it")
+        assert isinstance(pipe.stage("denoise").module, Scale) and not denoise.scriptable("scale_it")
         with pytest.raises(
             ValueError, match=r"has no parameter\(s\) \['size'\]; allowed: \['factor'\]"
         ):

@@ -123,7 +123,7 @@ def test_hdf5_file_input_keeps_structure_and_values(tmp_path):
             assert np.array_equal(b[f"{key}/amplitude"][()], a[f"{key}/amplitude"][()])
             assert np.array_equal(b[f"{key}/depth"][()] == 0, d_in == 0)
             depth = tio.read_hdf5(src, depth_key=f"{key}/depth", amplitude_key=f"{key}/amplitude")
-            expect = pipe(*depth)  # the first three frames were one batch, as here
+            expect, _ = pipe(*depth)  # the first three frames were one batch, as here
             got = b[f"{key}/depth"][()].astype(np.float64) * 1e-3
             valid = d_in > 0
             assert np.abs(got - expect[:, 0].double().numpy())[valid].max() <= 0.5e-3 + 1e-9

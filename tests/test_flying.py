@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from tof_fpn_torch.runtime import FlyingPixels, flying_pixels
+from tof_fpn_torch.runtime.stage import RecordOutputs
 from tof_fpn_torch.runtime.flying import ACTIONS
 
 NOISE = 0.003
@@ -137,8 +138,9 @@ def test_input_not_modified_and_dtype_device_follow():
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 def test_cuda_equals_cpu():
     depth, amp, _, _ = planted(7)
-    out, conf = FlyingPixels("reassign")(depth.cuda(), amp.cuda())
-    ref, ref_conf = FlyingPixels("reassign")(depth, amp)
+    out, rec = FlyingPixels("reassign").run(depth.cuda(), amp.cuda())
+    ref, ref_rec = FlyingPixels("reassign").run(depth, amp)
+    conf, ref_conf = rec["confidence"], ref_rec["confidence"]
     assert out.is_cuda and torch.allclose(out.cpu(), ref, atol=1e-5)
     assert torch.allclose(conf.cpu(), ref_conf, atol=1e-5)
 
@@ -168,8 +170,12 @@ def test_torchscript_equals_eager(action):
     stage = FlyingPixels(action)
     scripted = torch.jit.script(stage)
     for a in (amp, None):
-        for got, want in zip(scripted(depth, a), stage(depth, a), strict=True):
-            torch.testing.assert_close(got, want, atol=1e-5, rtol=0, equal_nan=True)
+        torch.testing.assert_close(scripted(depth, a), stage(depth, a), atol=1e-5, rtol=0)
+        (got, got_rec), (want, want_rec) = scripted.run(depth, a), stage.run(depth, a)
+        torch.testing.assert_close(got, want, atol=1e-5, rtol=0, equal_nan=True)
+        assert sorted(got_rec) == sorted(want_rec) == ["confidence", "flagged", "valid"]
+        for key in want_rec:
+            torch.testing.assert_close(got_rec[key], want_rec[key], atol=1e-5, rtol=0)
 
 
 def test_onnx_equals_eager(tmp_path):
@@ -180,7 +186,7 @@ def test_onnx_equals_eager(tmp_path):
     from tof_fpn_torch.export import export_onnx
 
     depth, amp, _, _ = planted(9)
-    stage = FlyingPixels("reassign")
+    stage = RecordOutputs(FlyingPixels("reassign"), ("confidence",))
     path = export_onnx(stage, tmp_path / "flying.onnx", example_inputs=(depth, amp))
     session = ort.InferenceSession(str(path))
     assert [o.name for o in session.get_outputs()] == ["output", "confidence"]

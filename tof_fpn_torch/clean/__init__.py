@@ -7,7 +7,8 @@ engine runs), the standard library and the layers :mod:`~tof_fpn_torch.runtime`,
 docs/clean.md describes the command, the configuration, the safety design and the measurements.
 
 - :mod:`.config` -- :class:`CleanConfig`, the TOML format (:func:`load_config`);
-- :mod:`.pipeline` -- :class:`CleanPipeline` (FPN stage + denoiser), the denoiser registry;
+- :mod:`.steps` -- the steps, one file each, and their registry (:func:`.steps.register`);
+- :mod:`.pipeline` -- :class:`CleanPipeline` (the built stages in order), the denoiser registry;
 - :mod:`.plan` -- jobs, INPUT / OUTPUT checks, temporary names;
 - :mod:`.work` -- load / compute / write one group of files (shared by the engines);
 - :mod:`.manifest` -- ``manifest.jsonl`` and resuming;
@@ -19,7 +20,7 @@ Example:
     'camera'
 """
 
-from .config import CHOICES, CleanConfig, config_from_dict, config_to_toml, load_config
+from .config import CleanConfig, choices, config_from_dict, config_to_toml, load_config, reference
 from .pipeline import (
     DENOISERS,
     Calibration,
@@ -31,7 +32,6 @@ from .pipeline import (
 from .run import ENGINES, CleanReport, clean, resolve_device
 
 __all__ = [
-    "CHOICES",
     "DENOISERS",
     "ENGINES",
     "Calibration",
@@ -39,11 +39,13 @@ __all__ = [
     "CleanPipeline",
     "CleanReport",
     "build_pipeline",
+    "choices",
     "clean",
     "config_from_dict",
     "config_to_toml",
     "describe",
     "load_config",
+    "reference",
     "register_denoiser",
     "resolve_device",
 ]

@@ -36,6 +36,7 @@ from ..analysis.stripe_energy import quiet_mask
 from ..denoise import estimate_sigma
 from ..io.stored import FrameSet, frame_set_tensors
 from ..runtime import valid_mask
+from .steps import steps
 
 __all__ = ["REPORT_FRAMES", "STRIPE_Z", "file_report", "summarise"]
 
@@ -82,15 +83,9 @@ def _finite_mean(values: list[float]) -> float | None:
     return sum(v) / len(v) if v else None
 
 
-def file_report(
-    sets: list[FrameSet],
-    encoded: dict,
-    gates: list[list[float]] | None,
-    flying: list[list[tuple[int, int]]] | None = None,
-) -> dict:
-    """The record of one file (module docstring) from its frame sets as read, the encoded depth
-    arrays (by set key), the notch gate per frame (None without a notch) and the flying-pixel
-    counts ``(flagged, valid)`` per frame (None or empty without the stage)."""
+def file_report(sets: list[FrameSet], encoded: dict) -> dict:
+    """The record of one file (module docstring) from its frame sets as read and the encoded
+    depth arrays (by set key); the steps add their own entries (``gate``, ``flying``, ...)."""
     frames = []
     for fs in sets:
         out = FrameSet(fs.key, encoded[fs.key], fs.amplitude, fs.depth_scale, fs.shape)
@@ -116,16 +111,7 @@ def file_report(
         "lowpass_change_mm": max((f["lowpass_change_mm"] for f in frames), default=0.0),
         "changed": _finite_mean([f["changed"] for f in frames]) or 0.0,
         "measured_frames": len(frames),
-        "gate": None,
     }
-    flat = [g for per_set in gates or [] for g in per_set]
-    if gates is not None and flat:
-        rec["gate"] = {"mean": sum(flat) / len(flat), "open_frames": sum(g > 0 for g in flat)}
-    counts = [n for per_set in flying or [] for n in per_set]
-    rec["flying"] = None
-    if counts:
-        flagged, valid = sum(n[0] for n in counts), sum(n[1] for n in counts)
-        rec["flying"] = {"flagged": flagged, "valid": valid, "share": flagged / max(valid, 1)}
     return rec
 
 
@@ -165,17 +151,10 @@ def summarise(records: list[dict]) -> list[str]:
                 f"{name[:-1]} stripe energy down {statistics.median(gains):.1f} dB (median over "
                 f"{len(gains)} file(s); range {min(gains):.1f} to {max(gains):.1f} dB)"
             )
-    flying = [r["flying"] for r in reps if r.get("flying")]
-    if flying:
-        flagged, valid = sum(f["flagged"] for f in flying), sum(f["valid"] for f in flying)
-        lines.append(
-            f"flying pixels: {flagged} flagged, {100 * flagged / max(valid, 1):.2f} % of the "
-            f"valid pixels of {len(flying)} file(s)"
-        )
-    gated = [r["gate"] for r in reps if r["gate"] is not None]
-    if gated:
-        opened = sum(g["open_frames"] for g in gated)
-        lines.append(f"notch gate opened for {opened} frame(s)")
+    done = [r for r in records if r.get("status") == "done" and r.get("report")]
+    for step in steps():
+        if step.scope == "frame":
+            lines += step.summary(done)
     lines.append(
         "low-pass depth moved at most "
         f"{max(r['lowpass_change_mm'] for r in reps):.2f} mm RMS (the scene itself)"

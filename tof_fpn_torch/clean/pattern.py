@@ -17,10 +17,7 @@ A pattern file (``.npz``, :mod:`tof_fpn_torch.io.patterns`) says which it is: :f
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
-
-from torch import nn
 
 from ..analysis import (
     ComplexPattern,
@@ -28,8 +25,8 @@ from ..analysis import (
     calibrate_complex_pattern,
     calibrate_fixed_pattern,
 )
-from ..io.patterns import read_pattern_file, write_pattern_file
 from .config import CleanConfig
+from .pattern_file import load_pattern, read_pattern, save_pattern
 from .plan import plan_jobs
 from .work import read_jobs
 
@@ -89,37 +86,3 @@ def calibrate(
         pattern = calibrate_complex_pattern(depth, amplitude, modulation_frequency_hz, rows=rows)
     save_pattern(pattern, output)
     return pattern
-
-
-def save_pattern(pattern: FixedPattern | ComplexPattern, path) -> Path:
-    """Write ``pattern`` to the file ``path`` (:mod:`tof_fpn_torch.io.patterns`; parent
-    directories are created)."""
-    kind = "complex" if isinstance(pattern, ComplexPattern) else "fixed"
-    arrays, meta = pattern.to_arrays()
-    return write_pattern_file(path, kind, arrays, meta)
-
-
-def read_pattern(path) -> FixedPattern | ComplexPattern:
-    """The pattern of a file written by :func:`save_pattern` (or :func:`calibrate`), either
-    domain; files of earlier versions read unchanged.
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: not a pattern file (the message says what is missing or wrong).
-    """
-    kind, arrays, meta = read_pattern_file(path)
-    cls = ComplexPattern if kind == "complex" else FixedPattern
-    return cls.from_arrays(arrays, meta)
-
-
-def load_pattern(path) -> nn.Module:
-    """The run-time module of a pattern file written by :func:`calibrate` (either domain)."""
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"pattern file not found: {path}")
-    try:
-        with zipfile.ZipFile(p):
-            pass
-    except zipfile.BadZipFile:
-        raise ValueError(f"{path} is not a pattern file (not an .npz archive)") from None
-    return read_pattern(p).module()

@@ -43,7 +43,7 @@ from .plan import (
     plan_jobs,
     remove_stale_temporaries,
 )
-from .temporal import temporal_lines
+from .steps import steps
 from .work import read_jobs
 
 __all__ = ["ENGINES", "CleanReport", "clean", "resolve_device"]
@@ -85,9 +85,8 @@ class CleanReport:
         if rec["status"] == "done":
             self.done += 1
             self.frames += rec["frames"]
-            self.records.append(
-                {"status": "done", "report": rec.get("report"), "temporal": rec.get("temporal")}
-            )
+            kept = {s.report_key: rec.get(s.report_key) for s in steps() if s.record_key == "file"}
+            self.records.append({"status": "done", "report": rec.get("report"), **kept})
         else:
             self.failed += 1
             self.failures.append((rec["file"], rec["error"]))
@@ -102,7 +101,8 @@ class CleanReport:
             f"{rate:.1f} frames/s; {self.failed} failed; {self.already_done} already done; "
             f"output {self.output}, manifest {os.path.join(self.output, MANIFEST)}"
         )
-        lines += summarise(self.records) + temporal_lines(self.records)
+        lines += summarise(self.records)
+        lines += [x for s in steps() if s.scope == "sequence" for x in s.summary(self.records)]
         if self.figure:
             lines.append(f"figure: {self.figure}")
         for name, why in self.failures[:SHOWN_FAILURES]:

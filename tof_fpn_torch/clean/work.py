@@ -33,7 +33,7 @@ from .config import CleanConfig
 from .manifest import input_identity, now
 from .measure import file_report
 from .plan import Job, temporary
-from .temporal import apply_temporal
+from .steps import steps
 
 __all__ = ["Loaded", "compute_group", "load_group", "read_jobs", "reason", "write_group"]
 
@@ -47,10 +47,12 @@ class Loaded:
     sets: list[FrameSet] | None = None
     tensors: list[tuple[torch.Tensor, torch.Tensor]] | None = None
     cleaned: list[torch.Tensor] | None = None
-    gates: list[list[float]] | None = None
-    temporal: list[dict] | None = None
-    flying: list[list[tuple[int, int]]] | None = None  # (flagged, valid) per frame, per set
-    confidence: list[torch.Tensor] | None = None  # the flying stage's confidence, per set
+    #: per frame set, per frame: {step: {record field: value}} of the frame stages
+    records: list[list[dict]] | None = None
+    #: per sequence step: its record of each frame set
+    sequence: dict[str, list[dict]] | None = None
+    #: ``<step>_<field>`` -> per frame set, the (frames, 1, H, W) map kept (pipeline.keep_maps)
+    maps: dict[str, list[torch.Tensor]] | None = None
     empty: int = 0
     identity: dict | None = None
     error: str | None = None
@@ -115,32 +117,36 @@ def read_jobs(jobs: list[Job], config: CleanConfig, limit: int | None = None):
     return depth, amplitude, camera
 
 
+def _frame_records(records: dict, i: int) -> dict:
+    """Frame ``i``'s share of a batch's records: {step: {field: float}} of the (B,) fields."""
+    return {
+        step: {k: float(v[i]) for k, v in rec.items() if v.dim() == 1}
+        for step, rec in records.items()
+    }
+
+
 def compute_group(
     pipeline: torch.nn.Module, group: list[Loaded], batch: int, device: torch.device | str = "cpu"
 ) -> list[Loaded]:
     """Run ``pipeline`` on the frames of the group's readable jobs, ``batch`` frames at a time
-    per frame shape (module docstring); fills ``cleaned`` (CPU tensors) and the compute time."""
+    per frame shape (module docstring), then its sequence stages per frame set; fills
+    ``cleaned`` (CPU tensors), the records, the kept maps and the compute time."""
     device = torch.device(device)
+    keep = [(step, f) for step, fields in pipeline.keep_maps.items() for f in fields]
     slots = []  # (shape, item, set index, frame index)
-    parts: dict[tuple[int, int], list[tuple[int, torch.Tensor]]] = {}
-    confs: dict[tuple[int, int], list[tuple[int, torch.Tensor]]] = {}  # --flying-confidence
-    keep = bool(getattr(pipeline, "keep_confidence", False))
+    parts: dict[tuple[int, int], list[tuple[int, torch.Tensor, dict, dict]]] = {}
     for item in group:
         if item.error is not None:
             continue
         item.cleaned = [torch.empty(0)] * len(item.tensors)
-        item.gates = [[] for _ in item.tensors]
-        item.flying = [[] for _ in item.tensors]
         for s, (depth, amplitude) in enumerate(item.tensors):
             has = valid_mask(depth, amplitude).flatten(1).any(1).tolist()
             for f in range(depth.shape[0]):
                 if has[f]:
                     slots.append((tuple(depth.shape[-2:]), item, s, f))
                 else:  # no valid pixel: nothing to clean, the frame passes as it is
-                    parts.setdefault((id(item), s), []).append((f, depth[f : f + 1]))
-                    confs.setdefault((id(item), s), []).append(
-                        (f, torch.zeros_like(depth[f : f + 1]))
-                    )
+                    zero = {f"{st}_{k}": torch.zeros_like(depth[f : f + 1]) for st, k in keep}
+                    parts.setdefault((id(item), s), []).append((f, depth[f : f + 1], {}, zero))
                     item.empty += 1
     shapes = list(dict.fromkeys(k for k, *_ in slots))
     for shape in shapes:
@@ -151,58 +157,52 @@ def compute_group(
             try:
                 d = torch.cat([it.tensors[s][0][f : f + 1] for _, it, s, f in chunk]).to(device)
                 a = torch.cat([it.tensors[s][1][f : f + 1] for _, it, s, f in chunk]).to(device)
-                y = pipeline(d, a).cpu()
-                fly = getattr(pipeline, "last_flying", None)
-                fly = None if fly is None else fly.tolist()
-                conf = pipeline.last_confidence.cpu() if keep else None
-                gates = pipeline.gates(d, a) if hasattr(pipeline, "gates") else None
+                y, records = pipeline(d, a)
+                y = y.cpu()
+                records = {st: {k: v.cpu() for k, v in r.items()} for st, r in records.items()}
             except Exception as exc:  # noqa: BLE001 -- recorded for the batch's files
                 for _, it, _, _ in chunk:
                     it.error = f"compute failed: {reason(exc)}"
                 continue
             share = (time.perf_counter() - t0) / len(chunk)
             for i, (_, it, s, f) in enumerate(chunk):
-                parts.setdefault((id(it), s), []).append((f, y[i : i + 1]))
-                if gates is not None:
-                    it.gates[s].append((f, float(gates[i])))
-                if fly is not None:
-                    it.flying[s].append((f, tuple(fly[i])))
-                if conf is not None:
-                    confs.setdefault((id(it), s), []).append((f, conf[i : i + 1]))
+                maps = {f"{st}_{k}": records[st][k][i : i + 1] for st, k in keep}
+                parts.setdefault((id(it), s), []).append(
+                    (f, y[i : i + 1], _frame_records(records, i), maps)
+                )
                 it.seconds["compute"] += share
     for item in group:
         if item.error is None and item.cleaned is not None:
+            item.records = []
+            item.maps = {f"{st}_{k}": [] for st, k in keep} if keep else None
             for s in range(len(item.cleaned)):
                 frames = sorted(parts.get((id(item), s), []), key=lambda p: p[0])
-                item.cleaned[s] = torch.cat([t for _, t in frames])
-                item.gates[s] = [g for _, g in sorted(item.gates[s])]
-                item.flying[s] = [n for _, n in sorted(item.flying[s])]
-            if keep:
-                item.confidence = [
-                    torch.cat([c for _, c in sorted(confs[(id(item), s)], key=lambda p: p[0])])
-                    for s in range(len(item.cleaned))
-                ]
-            _temporal(getattr(pipeline, "temporal", None), item)
+                item.cleaned[s] = torch.cat([t for _, t, _, _ in frames])
+                item.records.append([r for _, _, r, _ in frames])
+                for name in item.maps or {}:
+                    item.maps[name].append(torch.cat([m[name] for _, _, _, m in frames]))
+            _sequence(pipeline, item)
         if item.error is not None:
-            item.cleaned = item.confidence = None
+            item.cleaned = item.maps = None
         item.tensors = None  # not needed any more (and not to be pickled back)
     return group
 
 
-def _temporal(settings, item: Loaded) -> None:
-    """The temporal filter over each frame set of ``item`` in order (:mod:`.temporal`)."""
-    if settings is None:
+def _sequence(pipeline: torch.nn.Module, item: Loaded) -> None:
+    """The pipeline's sequence stages (temporal) over each frame set of ``item`` in order."""
+    if len(pipeline.sequence) == 0:
         return
-    item.temporal = []
+    item.sequence = {name: [] for name in pipeline.sequence}
     t0 = time.perf_counter()
     try:
         for s, (fs, (_, amplitude)) in enumerate(zip(item.sets, item.tensors, strict=True)):
-            item.cleaned[s], rec = apply_temporal(
-                settings, item.cleaned[s], amplitude, fs.timestamps_s
+            item.cleaned[s], recs = pipeline.run_sequence(
+                item.cleaned[s], amplitude, fs.timestamps_s
             )
-            item.temporal.append(rec)
+            for name, rec in recs.items():
+                item.sequence[name].append(rec)
     except Exception as exc:  # noqa: BLE001 -- recorded for the file
-        item.error = f"temporal failed: {reason(exc)}"
+        item.error = f"{', '.join(pipeline.sequence)} failed: {reason(exc)}"
     item.seconds["compute"] += time.perf_counter() - t0
 
 
@@ -219,11 +219,11 @@ def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
         tmp = temporary(job.out_depth, token)
         temps.append((tmp, job.out_depth))
         write_like(job.depth, tmp, encoded, item.sets, config.output_scale)
-        for dst, conf in confidence_files(job, item.confidence):
+        for dst, frames in map_files(job, item.maps):
             tmp = temporary(dst, token)
             temps.append((tmp, dst))
             with open(tmp, "wb") as fh:
-                np.save(fh, conf[:, 0].numpy().astype(np.float32))
+                np.save(fh, frames[:, 0].numpy().astype(np.float32))
         if job.amplitude is not None:  # the amplitude is not changed: copied byte for byte
             tmp = temporary(job.out_amplitude, token)
             temps.append((tmp, job.out_amplitude))
@@ -240,24 +240,32 @@ def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
                 pass
         return {"error": f"write failed: {reason(exc)}"}
     try:
-        report = file_report(item.sets, encoded, item.gates, item.flying)
+        report = file_report(item.sets, encoded)
+        for step in steps():
+            if step.scope == "frame" and step.file_record is not None:
+                frames = [
+                    r[step.name] for per_set in item.records for r in per_set if step.name in r
+                ]
+                report[step.report_key] = step.file_record(frames) if frames else None
     except Exception as exc:  # noqa: BLE001 -- the file is written; the record says why not
         report = {"error": f"not measured: {reason(exc)}"}
     return {"clamped": clamped, "report": report}
 
 
-def confidence_files(
-    job: Job, confidence: list[torch.Tensor] | None
+def map_files(
+    job: Job, maps: dict[str, list[torch.Tensor]] | None
 ) -> list[tuple[str, torch.Tensor]]:
-    """``(path, (frames, 1, H, W) confidence)`` per frame set of ``--flying-confidence``:
-    ``<output stem>.flying_confidence.npy`` beside the depth output (``.<set>`` before ``.npy``
-    when the file has several frame sets); none without it."""
-    if confidence is None:
-        return []
-    stem = os.path.splitext(job.out_depth)[0] + ".flying_confidence"
-    if len(confidence) == 1:
-        return [(stem + ".npy", confidence[0])]
-    return [(f"{stem}.{s}.npy", c) for s, c in enumerate(confidence)]
+    """``(path, (frames, 1, H, W) map)`` per kept map and frame set (e.g. ``--flying-confidence``):
+    ``<output stem>.<step>_<field>.npy`` beside the depth output (``.<set>`` before ``.npy``
+    when the file has several frame sets); none without kept maps."""
+    out = []
+    for name, per_set in (maps or {}).items():
+        stem = os.path.splitext(job.out_depth)[0] + "." + name
+        if len(per_set) == 1:
+            out.append((stem + ".npy", per_set[0]))
+        else:
+            out += [(f"{stem}.{s}.npy", m) for s, m in enumerate(per_set)]
+    return out
 
 
 def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig) -> list[dict]:
@@ -279,8 +287,9 @@ def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig)
                 rec["report"] = res["report"]
             if item.empty:
                 rec["empty_frames"] = item.empty  # no valid pixel: written as they came
-            if item.temporal is not None:
-                rec["temporal"] = item.temporal  # per frame set: applied, or why not
+            for step in steps():  # a sequence step's record per frame set (temporal)
+                if step.record_key == "file" and item.sequence and step.name in item.sequence:
+                    rec[step.report_key] = step.file_record(item.sequence[step.name])
         if item.error is None:
             rec.update(
                 status="done",
@@ -288,15 +297,15 @@ def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig)
                 frames=sum(int(fs.depth.shape[0]) for fs in item.sets),
                 input=item.identity,
             )
-            if item.confidence is not None:  # --flying-confidence
-                rec["flying_confidence"] = [
+            for name in item.maps or {}:  # kept maps (--flying-confidence)
+                rec[name] = [
                     os.path.relpath(p, root).replace(os.sep, "/")
-                    for p, _ in confidence_files(job, item.confidence)
+                    for p, _ in map_files(job, {name: item.maps[name]})
                 ]
         else:
             rec.update(status="failed", error=item.error)
         rec.update({f"{k}_s": round(v, 6) for k, v in item.seconds.items()})
         rec["time"] = now()
         records.append(rec)
-        item.sets = item.cleaned = item.confidence = None
+        item.sets = item.cleaned = item.maps = None
     return records

@@ -20,12 +20,9 @@ try:
 except ModuleNotFoundError:  # Python 3.10: the same parser as a package
     import tomli as tomllib
 
-from ..clean import CHOICES, DENOISERS, ENGINES, CleanConfig, clean, load_config
-from ..clean.config import FLYING
-from ._common import UsageError, float_arg, int_arg, set_threads, threads_arg
-
-#: ``--denoise`` values
-DENOISE_CHOICES = ("none", *sorted(DENOISERS))
+from ..clean import ENGINES, CleanConfig, clean, load_config
+from ..clean.steps import FILE_OPTIONS, Option, TableOption, options
+from ._common import UsageError, int_arg, set_threads, threads_arg
 
 
 def _option(text: str) -> tuple[str, object]:
@@ -40,14 +37,57 @@ def _option(text: str) -> tuple[str, object]:
     return key.strip(), parsed
 
 
-def _flying_arguments(g) -> None:
-    """``--flying`` and ``--flying-confidence`` in the stage group ``g``."""
-    g.add_argument("--flying", choices=FLYING, help="mixed pixels at depth edges (default off)")
-    g.add_argument(
-        "--flying-confidence",
-        action="store_true",
-        help="write the flying-pixel confidence map beside each output "
-        "(<output stem>.flying_confidence.npy, float32 frames x H x W)",
+def _setting_arg(option: Option):
+    """argparse ``type`` of a declared option: parsed to its kind and checked by its setting."""
+    setting = option.setting
+
+    def parse(text: str):
+        try:
+            value = setting.kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {setting.allowed()}, got {text!r}") from None
+        try:
+            return setting.check(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {setting.allowed()}, got {text!r}") from None
+
+    parse.__name__ = setting.kind.__name__
+    return parse
+
+
+def add_option(group, option: Option | TableOption) -> None:
+    """The flag of one declared option (module :mod:`tof_fpn_torch.clean.steps`)."""
+    if isinstance(option, TableOption):
+        group.add_argument(
+            f"--{option.flag}",
+            dest=option.name,
+            type=_option,
+            action="append",
+            metavar="KEY=VALUE",
+            help=option.help,
+        )
+        return
+    flag, s = option.cli_flag(), option.setting
+    if not flag:
+        return
+    if s.kind is bool:
+        on = s.default is not True
+        group.add_argument(
+            f"--{flag}" if on else f"--no-{flag}",
+            dest=option.name,
+            action="store_const",
+            const=on,
+            help=s.help if on else f"turn off {s.help}",
+        )
+        return
+    choices = option.cli_choices() if option.cli_choices is not None else (s.choices or None)
+    group.add_argument(
+        f"--{flag}",
+        dest=option.name,
+        type=None if choices else _setting_arg(option),
+        choices=choices,
+        metavar="FILE" if option.path else None,
+        help=s.help,
     )
 
 
@@ -71,54 +111,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = p.add_argument_group(
         "stages (default: --stage auto, every piece measured on the first frames of INPUT)"
     )
-    g.add_argument(
-        "--stage",
-        choices=CHOICES["stage"],
-        help="auto: notch, fusion and destriping measured on the data (default); paper: the "
-        "paper's CamCube notch stage with its 70 / 350 fusion",
-    )
-    g.add_argument("--destripe", choices=CHOICES["destripe"], help="broadband offsets")
-    g.add_argument("--notch", choices=CHOICES["notch"], help="periodic stripes")
-    g.add_argument("--fusion", choices=CHOICES["fusion"], help="eq. (11) amplitude fusion")
-    g.add_argument("--denoise", choices=DENOISE_CHOICES, help="denoiser after the FPN stage")
-    _flying_arguments(g)
-    g.add_argument(
-        "--pattern",
-        metavar="FILE",
-        help="a fixed pattern from tof-fpn calibrate, removed from every frame first",
-    )
-    g.add_argument(
-        "--denoise-opt",
-        type=_option,
-        action="append",
-        metavar="KEY=VALUE",
-        help="a denoiser option, e.g. h=0.8 (repeatable)",
-    )
-    g.add_argument("--order", type=int_arg(1), help="notch filter order")
-    g.add_argument("--rho", type=float_arg(0.0, open_lo=True), help="transition half-width / pi")
-    g.add_argument("--no-gate", action="store_true", help="apply the notch to every frame")
-    g.add_argument("--camera", help="camera profile of --fusion camera (e.g. adtf3175)")
-    g.add_argument("--low", type=float_arg(0.0), help="--fusion manual: low threshold")
-    g.add_argument("--high", type=float_arg(0.0, open_lo=True), help="--fusion manual: high")
-    g.add_argument("--calibration-frames", type=int_arg(1), help="frames measured by data stages")
-    g.add_argument("--temporal", action="store_true", help="filter each recording over time")
+    for option in options():
+        add_option(g, option)
     f = p.add_argument_group("files and execution")
-    f.add_argument("--batch", type=int_arg(1), help="files per group, frames per batch")
-    f.add_argument("--depth-scale", type=float_arg(0.0, open_lo=True), help="metres per unit")
-    f.add_argument("--height", type=int_arg(1), help="rows of raw .bin / .raw frames")
-    f.add_argument("--width", type=int_arg(1), help="columns of raw .bin / .raw frames")
-    f.add_argument(
-        "--rounding",
-        choices=CHOICES["rounding"],
-        help="integer outputs: dither (default: sub-unit corrections survive in the mean) or "
-        "nearest",
-    )
-    f.add_argument(
-        "--output-scale",
-        type=float_arg(0.0, open_lo=True),
-        metavar="M",
-        help="integer outputs: metres per stored unit, e.g. 0.0001 (default: the input's)",
-    )
+    for option in FILE_OPTIONS:
+        add_option(f, option)
     f.add_argument("--no-figure", action="store_true", help="do not draw OUTPUT/report.png")
     f.add_argument(
         "--workers", type=int_arg(0, 256), default=0, help="DataLoader workers (default 0)"
@@ -135,35 +132,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 def config_from_args(args: argparse.Namespace) -> CleanConfig:
     """The file's configuration (or the defaults) with the flags given applied."""
     base = load_config(args.config) if args.config else CleanConfig()
-    options = dict(base.denoise_options)
-    if args.denoise is not None and args.denoise != base.denoise:
-        options = {}
-    options.update(dict(args.denoise_opt or []))
-    return base.replace(
-        stage=args.stage,
-        destripe=args.destripe,
-        notch=args.notch,
-        fusion=args.fusion,
-        denoise=args.denoise,
-        pattern=None if args.pattern is None else os.path.abspath(args.pattern),
-        denoise_options=options,
-        order=args.order,
-        rho=args.rho,
-        gate=False if args.no_gate else None,
-        camera=args.camera,
-        low=args.low,
-        high=args.high,
-        calibration_frames=args.calibration_frames,
-        batch=args.batch,
-        depth_scale=args.depth_scale,
-        height=args.height,
-        width=args.width,
-        rounding=args.rounding,
-        output_scale=args.output_scale,
-        temporal=True if args.temporal else None,
-        flying=args.flying,
-        flying_confidence=True if args.flying_confidence else None,
-    )
+    changes: dict = {}
+    for option in [*options(), *FILE_OPTIONS]:
+        given = vars(args).get(option.name)
+        if isinstance(option, TableOption):
+            table = dict(getattr(base, option.name))
+            follows = vars(args).get(option.follows) if option.follows else None
+            if follows is not None and follows != getattr(base, option.follows):
+                table = {}  # another denoiser: the file's options were the old one's
+            table.update(dict(given or []))
+            changes[option.name] = table
+        elif given is not None:
+            changes[option.name] = os.path.abspath(given) if option.path else given
+    return base.replace(**changes)
 
 
 def run(args: argparse.Namespace) -> int:

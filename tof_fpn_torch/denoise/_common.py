@@ -32,9 +32,12 @@ import torch.nn.functional as F
 from .. import constants as K
 from ..runtime._checks import check_image
 from ..runtime.noise import wavelet_noise_k, wavelet_sigma
+from ..runtime.stage import Stage, empty_record
 from ..runtime.validity import valid_mask
 
 __all__ = [
+    "Denoiser",
+    "empty_record",
     "amplitude_floor",
     "as_sigma",
     "check_amplitude",
@@ -200,3 +203,15 @@ def check_window(H: int, W: int, kernel_size: int, name: str) -> None:
 def restore_invalid(out: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """The result in the dtype of ``depth``, with ``depth``'s values at invalid pixels."""
     return torch.where(valid, out, depth.detach().to(out.dtype)).to(depth.dtype)
+
+
+class Denoiser(Stage):
+    """The base of the denoisers: each class defines ``forward(depth, amplitude=None,
+    sigma=None) -> depth`` (``sigma``: module docstring); :meth:`run` is the stage contract's form
+    (:mod:`tof_fpn_torch.runtime.stage`): the frame denoised with its own noise estimate, and an
+    empty record."""
+
+    def _run(
+        self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        return self.forward(depth, amplitude, None), empty_record()

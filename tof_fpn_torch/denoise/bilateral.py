@@ -31,10 +31,9 @@ from __future__ import annotations
 
 import torch
 from kornia.filters import bilateral_blur, joint_bilateral_blur
-from torch import nn
 
 from ..runtime.noise import hh_kernel, wavelet_sigma
-from ._common import as_sigma, check_k, check_window, noise_map, prepare, restore_invalid
+from ._common import Denoiser, as_sigma, check_k, check_window, noise_map, prepare, restore_invalid
 from ._levels import LEVEL_RATIO, MAX_LEVELS, blend, check_levels, levels
 
 __all__ = [
@@ -265,7 +264,7 @@ def joint_bilateral(
     )
 
 
-class Bilateral(nn.Module):
+class Bilateral(Denoiser):
     """Bilateral filter (kornia) with masked holes and a range sigma following the noise.
 
     Module of :func:`bilateral` (same parameters); ``forward(depth, amplitude=None, sigma=None)``.
@@ -307,7 +306,7 @@ class Bilateral(nn.Module):
         )
 
 
-class JointBilateral(nn.Module):
+class JointBilateral(Denoiser):
     """Joint bilateral filter (kornia) of depth guided by the amplitude, with masked holes.
 
     Module of :func:`joint_bilateral`; ``forward(depth, amplitude, sigma=None)`` (the amplitude is

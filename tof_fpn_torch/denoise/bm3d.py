@@ -46,10 +46,18 @@ from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from ..runtime.noise import hh_kernel
-from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
+from ._common import (
+    Denoiser,
+    as_sigma,
+    check_k,
+    empty_record,
+    fill_invalid,
+    noise_map,
+    prepare,
+    restore_invalid,
+)
 from .bm3d_core import bm3d_image, check_psd, psd_block_covariance
 
 __all__ = [
@@ -292,7 +300,7 @@ def _bm3d(
     return restore_invalid(out, depth, valid)
 
 
-class BM3D(nn.Module):
+class BM3D(Denoiser):
     r"""BM3D denoiser for (B, C, H, W) depth (thin module over :func:`bm3d`; same parameters).
 
     ``forward(depth, amplitude=None, sigma=None, psd=None)``. TorchScript: ``torch.jit.script``
@@ -353,6 +361,11 @@ class BM3D(nn.Module):
             f"max_blocks={self.max_blocks}, tau={self.tau}, lam={self.lam}, mu2={self.mu2}, "
             f"features_wiener={self.features_wiener}, wiener={self.wiener}"
         )
+
+    def _run(
+        self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        return self.forward(depth, amplitude, None, None), empty_record()
 
     def forward(
         self,

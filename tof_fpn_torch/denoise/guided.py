@@ -30,10 +30,10 @@ from __future__ import annotations
 
 import torch
 from kornia.filters import guided_blur
-from torch import nn
 
 from ..runtime.noise import hh_kernel, wavelet_sigma
 from ._common import (
+    Denoiser,
     as_sigma,
     check_k,
     check_window,
@@ -141,7 +141,7 @@ def guided(
     return restore_invalid(out, depth, valid)
 
 
-class Guided(nn.Module):
+class Guided(Denoiser):
     """Guided filter (kornia) with filled holes and an ``eps`` following the noise.
 
     Module of :func:`guided` (same parameters); ``forward(depth, amplitude=None, sigma=None)``.

@@ -35,10 +35,9 @@ import math
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from ..runtime.noise import hh_kernel, wavelet_sigma
-from ._common import as_sigma, check_k, noise_map, prepare, restore_invalid
+from ._common import Denoiser, as_sigma, check_k, noise_map, prepare, restore_invalid
 
 __all__ = [
     "HYPBI_COLOR",
@@ -250,7 +249,7 @@ def _hypothesis_bilateral(
     return restore_invalid(out, depth, valid)
 
 
-class HypothesisBilateral(nn.Module):
+class HypothesisBilateral(Denoiser):
     """Hypothesis bilateral refinement of ToF depth (Yang et al. 2007) guided by the amplitude.
 
     Module of :func:`hypothesis_bilateral` (same parameters); ``forward(depth, amplitude=None,

@@ -31,10 +31,9 @@ import math
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from ..runtime.noise import hh_kernel
-from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
+from ._common import Denoiser, as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
 
 __all__ = [
     "LPAICI",
@@ -232,7 +231,7 @@ def _lpa_ici(
     return restore_invalid(out, depth, valid)
 
 
-class LPAICI(nn.Module):
+class LPAICI(Denoiser):
     r"""Anisotropic LPA-ICI denoiser (module of :func:`lpa_ici`, same parameters).
 
     ``forward(depth, amplitude=None, sigma=None)``; ``torch.jit.script`` compiles it. The kernels

@@ -49,13 +49,12 @@ from __future__ import annotations
 import math
 
 import torch
-from torch import nn
 
 from .. import constants as K
 from ..runtime._checks import check_image
 from ..runtime.noise import hh_kernel, wavelet_noise_k, wavelet_sigma
 from ..runtime.validity import valid_mask
-from ._common import amplitude_floor, as_sigma, check_sigma_tensor
+from ._common import Denoiser, amplitude_floor, as_sigma, check_sigma_tensor
 from .nlm_core import nlm_core, patch_taps
 
 __all__ = [
@@ -310,7 +309,7 @@ def _chunks(
     return torch.cat(outs, 0)
 
 
-class NonLocalMeans(nn.Module):
+class NonLocalMeans(Denoiser):
     r"""Non-local means denoiser for (B, C, H, W) depth (thin module over :func:`non_local_means`).
 
     Args:

@@ -19,10 +19,9 @@ from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from ..runtime.noise import hh_kernel
-from ._common import as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
+from ._common import Denoiser, as_sigma, check_k, fill_invalid, noise_map, prepare, restore_invalid
 from .bm3d_core import _aggregate, _synthesis, _transform, dct_matrix
 
 __all__ = ["SDCT_BETA", "SDCT_BLOCK_SIZE", "SDCT_LAM", "SDCT_STEP", "SlidingDCT", "sliding_dct"]
@@ -161,7 +160,7 @@ def _sliding_dct(
     return restore_invalid(out, depth, valid)
 
 
-class SlidingDCT(nn.Module):
+class SlidingDCT(Denoiser):
     r"""Sliding-window DCT denoiser (module of :func:`sliding_dct`, same parameters).
 
     ``forward(depth, amplitude=None, sigma=None)``; ``torch.jit.script`` compiles it.

@@ -16,10 +16,10 @@ make a valid depth invalid (``<= 0``) the input is kept. Nothing is estimated at
 import math
 
 import torch
-from torch import nn
 
 from ._checks import check_image, check_same_shape
 from ._phasor import depth_from_phase_change, metres_per_radian, phasor
+from .stage import Stage, empty_record
 from .validity import valid_mask
 
 __all__ = ["ComplexPatternCorrection"]
@@ -35,7 +35,7 @@ def _vector(v, name: str, n: int) -> torch.Tensor:
     return t
 
 
-class ComplexPatternCorrection(nn.Module):
+class ComplexPatternCorrection(Stage):
     r"""Remove a calibrated complex fixed pattern: ``z' = z - c(x) - r(y)``, depth by the phase
     change.
 
@@ -111,8 +111,14 @@ class ComplexPatternCorrection(nn.Module):
             f"modulation_frequency_hz={self.modulation_frequency_hz:g}, wrap={self.wrap}"
         )
 
-    def forward(self, depth: torch.Tensor, amplitude: torch.Tensor) -> torch.Tensor:
+    def _run(
+        self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         check_image(depth, "depth")
+        if amplitude is None:
+            raise ValueError(
+                "amplitude is required: the pattern is complex (A e^{j phi}); got None"
+            )
         check_image(amplitude, "amplitude")
         check_same_shape(amplitude, depth, "amplitude", "depth")
         if depth.shape[-1] != self.width or (self.height >= 0 and depth.shape[-2] != self.height):
@@ -133,4 +139,5 @@ class ComplexPatternCorrection(nn.Module):
         y = depth_from_phase_change(x, z, zc, self.scale, self.wrap)
         # invalid pixels come out bit-identical; a valid pixel never comes out invalid
         y = torch.where(valid & valid_mask(y), y, x)
-        return torch.where(valid.reshape(b, c, h, w), y.reshape(b, c, h, w).to(depth.dtype), depth)
+        out = torch.where(valid.reshape(b, c, h, w), y.reshape(b, c, h, w).to(depth.dtype), depth)
+        return out, empty_record()

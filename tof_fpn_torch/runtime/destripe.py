@@ -56,7 +56,7 @@ from .. import constants as K
 from ._checks import check_image, check_same_shape, normalize_dims
 from ._destripe_core import column_offsets
 from ._phasor import depth_from_phase_change, metres_per_radian, phasor
-from ._stage import Float32Stage
+from .stage import RecordField, Setting, Stage, check_settings
 from .validity import all_valid, valid_mask
 
 __all__ = ["Destripe", "destripe"]
@@ -254,7 +254,7 @@ def destripe(
     )
 
 
-class Destripe(Float32Stage):
+class Destripe(Stage):
     r"""Broadband column / row offset removal, the module form of :func:`destripe`.
 
     Holds the settings (no learned or fixed coefficients: the offsets are estimated from each
@@ -274,6 +274,33 @@ class Destripe(Float32Stage):
         >>> m(torch.rand(2, 1, 40, 56) + 1.0).shape
         torch.Size([2, 1, 40, 56])
     """
+
+    settings = (
+        Setting("width", int, K.DESTRIPE_WIDTH, "columns of the local linear fit kept", low=3),
+        Setting(
+            "clip",
+            float,
+            K.DESTRIPE_CLIP,
+            "robust sigmas beyond which a step is an edge",
+            low=0.0,
+            open_low=True,
+        ),
+        Setting(
+            "shrink", str, "local", "the never-hurts shrinkage's windows", choices=SHRINK_MODES
+        ),
+        Setting("domain", str, "depth", "offsets of the depth or of A e^{j phi}", choices=DOMAINS),
+        Setting(
+            "modulation_frequency_hz",
+            float,
+            None,
+            "Hz, with domain='complex'",
+            low=0.0,
+            open_low=True,
+        ),
+        Setting("wrap", bool, True, "re-wrap the complex-domain depth into one range"),
+        Setting("local_width", int, K.DESTRIPE_LOCAL_WIDTH, "columns per shrinkage window", low=3),
+    )
+    record = (RecordField("moved", "valid pixels whose depth changed"),)
 
     dims: list[int]
     width: int
@@ -297,6 +324,7 @@ class Destripe(Float32Stage):
     ) -> None:
         super().__init__()
         _check_params(width, clip, shrink, domain, modulation_frequency_hz, local_width)
+        check_settings(type(self), width=width, clip=clip, shrink=shrink, wrap=wrap)
         self.dims = list(normalize_dims(dim))
         self.width = int(width)
         self.clip = float(clip)
@@ -316,7 +344,9 @@ class Destripe(Float32Stage):
             s += f", modulation_frequency_hz={self.modulation_frequency_hz:g}, wrap={self.wrap}"
         return s
 
-    def _forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
+    def _run(
+        self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         check_image(depth, "depth")
         if amplitude is not None:
             check_image(amplitude, "amplitude")
@@ -325,7 +355,7 @@ class Destripe(Float32Stage):
             raise ValueError(
                 "amplitude is required with domain='complex' (z = A e^{j phi}); got None"
             )
-        return _destripe(
+        y = _destripe(
             depth,
             amplitude,
             self.dims,
@@ -337,3 +367,5 @@ class Destripe(Float32Stage):
             self.modulation_frequency_hz,
             self.wrap,
         )
+        moved = (y != depth) & (y == y)  # NaN-safe: an invalid pixel is never moved
+        return y, {"moved": moved.flatten(1).sum(1).to(torch.float32)}

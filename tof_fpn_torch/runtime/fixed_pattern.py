@@ -15,9 +15,9 @@ element-wise operations, exported as they are.
 
 # no `from __future__ import annotations`: TorchScript reads the class-level attribute types below
 import torch
-from torch import nn
 
 from ._checks import check_image, check_same_shape
+from .stage import Stage, empty_record
 from .validity import valid_mask
 
 __all__ = ["FixedPatternCorrection"]
@@ -33,7 +33,7 @@ def _vector(v, name: str, n: int | None) -> torch.Tensor:
     return t
 
 
-class FixedPatternCorrection(nn.Module):
+class FixedPatternCorrection(Stage):
     r"""Remove a calibrated fixed pattern: ``(D - c(x) - r(y) - p(y, x)) / g(x)``.
 
     Args:
@@ -103,7 +103,9 @@ class FixedPatternCorrection(nn.Module):
         h = "any" if self.height < 0 else str(self.height)
         return f"height={h}, width={self.width}, offset_rows={self.offset.shape[0]}"
 
-    def forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
+    def _run(
+        self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         check_image(depth, "depth")
         if amplitude is not None:
             check_image(amplitude, "amplitude")
@@ -118,4 +120,6 @@ class FixedPatternCorrection(nn.Module):
         gain = self.gain.to(depth.dtype)
         out = (depth - off) / gain
         # invalid pixels come out bit-identical; a valid pixel never comes out invalid
-        return torch.where(valid_mask(depth, amplitude) & valid_mask(out), out, depth)
+        return torch.where(
+            valid_mask(depth, amplitude) & valid_mask(out), out, depth
+        ), empty_record()

@@ -61,11 +61,11 @@ import math
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from ._checks import check_image, check_same_shape, check_tensor_type
 from ._facets import local_noise, nearest_kept, plane_fit, shifted
 from .noise import facet_noise
+from .stage import RecordField, Setting, Stage
 from .validity import valid_mask
 
 __all__ = [
@@ -333,7 +333,7 @@ def flying_pixels(
     return _flying(depth, amplitude, action, threshold, fill, min_noise, softness, RULE)
 
 
-class FlyingPixels(nn.Module):
+class FlyingPixels(Stage):
     """Flying-pixel stage: :func:`flying_pixels` with its settings held (module docstring).
 
     Args:
@@ -342,17 +342,44 @@ class FlyingPixels(nn.Module):
 
     Shape:
         - depth: (B, 1, H, W) float; amplitude: (B, 1, H, W) or None.
-        - Output: ``(depth, confidence)``, each (B, 1, H, W).
+        - :meth:`forward`: the depth after the action, (B, 1, H, W); :meth:`run`: the depth and
+          the record ``flagged`` and ``valid`` (B,) pixel counts and ``confidence`` (B, 1, H, W).
 
     Example:
         >>> stage = FlyingPixels("reassign")
-        >>> out, conf = stage(torch.full((2, 1, 32, 32), 1.5), torch.full((2, 1, 32, 32), 100.0))
-        >>> bool((out == 1.5).all()), bool((conf == 1).all())
-        (True, True)
+        >>> out, rec = stage.run(torch.full((2, 1, 32, 32), 1.5), torch.full((2, 1, 32, 32), 100.0))
+        >>> bool((out == 1.5).all()), bool((rec["confidence"] == 1).all()), rec["flagged"].tolist()
+        (True, True, [0.0, 0.0])
     """
 
-    #: names of the graph's outputs in an ONNX export (the inputs: ``depth``, ``amplitude``)
-    onnx_outputs = ["output", "confidence"]
+    settings = (
+        Setting("action", str, "mark", "what happens to a flagged pixel", choices=ACTIONS),
+        Setting(
+            "threshold",
+            float,
+            THRESHOLD,
+            "noise sigmas off every surface that flag a pixel",
+            low=0.0,
+            open_low=True,
+        ),
+        Setting("fill", float, 0.0, "the depth of an invalidated pixel (0 or NaN: invalid)"),
+        Setting(
+            "min_noise", float, 1e-3, "floor of the noise map, depth units", low=0.0, open_low=True
+        ),
+        Setting(
+            "softness",
+            float,
+            1.0,
+            "half-width of the confidence ramp, sigmas",
+            low=0.0,
+            open_low=True,
+        ),
+    )
+    record = (
+        RecordField("flagged", "valid pixels flagged as flying (confidence < 0.5)"),
+        RecordField("valid", "valid pixels the stage saw"),
+        RecordField("confidence", "1: a surface explains the pixel, < 0.5: flagged", "pixel"),
+    )
     #: :func:`~tof_fpn_torch.export.export_onnx` takes the TorchScript-based exporter (seconds;
     #: ``torch.export`` and the ONNX optimiser take minutes over the unrolled loops)
     onnx_dynamo = False
@@ -380,13 +407,10 @@ class FlyingPixels(nn.Module):
             f"min_noise={self.min_noise}, softness={self.softness}"
         )
 
-    def forward(
+    def _run(
         self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        if not torch.jit.is_scripting():
-            check_tensor_type(depth, "depth")
-            check_tensor_type(amplitude, "amplitude", optional=True)
-        return _flying(
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        out, conf = _flying(
             depth,
             amplitude,
             self.action,
@@ -396,3 +420,11 @@ class FlyingPixels(nn.Module):
             self.softness,
             self.rule,
         )
+        valid = valid_mask(depth, amplitude)
+        flagged = (conf < 0.5) & valid
+        record = {
+            "flagged": flagged.flatten(1).sum(1).to(torch.float32),
+            "valid": valid.flatten(1).sum(1).to(torch.float32),
+            "confidence": conf,
+        }
+        return out, record

@@ -38,10 +38,10 @@ from torch import nn
 
 from .. import constants as K
 from ._checks import check_image, check_same_shape
-from ._stage import Float32Stage
 from .fpn_filter import FPNFilter, _tracing
 from .fusion import AmplitudeFusion
 from .gate import line_gate, noise_power, risk_shrinkage
+from .stage import RecordField, Setting, Stage
 from .trainable import TrainableFusion
 from .validity import all_valid, valid_mask
 
@@ -63,7 +63,7 @@ def _centre(taps: torch.Tensor, dims: int) -> float:
     return c**dims
 
 
-class FPNSuppression(Float32Stage):
+class FPNSuppression(Stage):
     r"""Fixed-pattern-noise suppression of ToF depth (see the module docstring).
 
     Args:
@@ -95,7 +95,28 @@ class FPNSuppression(Float32Stage):
         torch.Size([1, 1, 32, 48])
     """
 
-    __jit_ignored_attributes__ = ["estimate"]
+    settings = (
+        Setting("gate", bool, True, "apply the notch through the per-frame stripe gate"),
+        Setting(
+            "min_stripe",
+            float,
+            K.GATE_MIN_STRIPE,
+            "noise units of stripe that open the gate",
+            low=0.0,
+        ),
+        Setting(
+            "stripe_scale",
+            float,
+            1.0,
+            "factor on the stripe power the gate reads",
+            low=0.0,
+            open_low=True,
+        ),
+    )
+    record = (
+        RecordField("gate", "the notch's share applied to the frame, in [0, 1] (NaN: no notch)"),
+    )
+    __jit_ignored_attributes__ = ["estimate", "settings", "record"]
     __jit_unused_properties__ = ["design"]
 
     def __init__(
@@ -152,7 +173,9 @@ class FPNSuppression(Float32Stage):
     def extra_repr(self) -> str:
         return f"gate={self.gate}, min_stripe={self.min_stripe}, stripe_scale={self.stripe_scale}"
 
-    def _forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
+    def _run(
+        self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         check_image(depth, "depth", 1)
         if amplitude is not None:
             check_image(amplitude, "amplitude", 1)
@@ -172,18 +195,25 @@ class FPNSuppression(Float32Stage):
                 amp_ok = bool(lo >= 0) and bool(hi < math.inf)
             if not amp_ok or not all_valid(depth):
                 mask = valid_mask(depth, amplitude)
-        y = self._notch(depth, amplitude, mask)
+        record = torch.jit.annotate(dict[str, torch.Tensor], {})
+        y = self._notch(depth, amplitude, mask, record)
         destripe = self.destripe
         if destripe is not None:
             y = destripe(y, amplitude)
-        return y
+        return y, record
 
     def _notch(
-        self, depth: torch.Tensor, amplitude: torch.Tensor | None, mask: torch.Tensor | None
+        self,
+        depth: torch.Tensor,
+        amplitude: torch.Tensor | None,
+        mask: torch.Tensor | None,
+        record: dict[str, torch.Tensor],
     ) -> torch.Tensor:
-        """Steps 1-3: the gated notch filter and fusion."""
+        """Steps 1-3: the gated notch filter and fusion; puts the gate per frame in ``record``."""
         notch = self.filter
-        if notch is None:
+        B = depth.shape[0]
+        if notch is None:  # no notch: no gate
+            record["gate"] = torch.full((B,), math.nan, device=depth.device)
             return depth
         filtered = notch(depth, mask)
         out = filtered
@@ -191,10 +221,13 @@ class FPNSuppression(Float32Stage):
         if fusion is not None and amplitude is not None:
             out = fusion(filtered, depth, amplitude)
         if not self.gate:
+            record["gate"] = torch.ones(B, device=depth.device)
             return out
         g = self._gate(depth, amplitude, mask, filtered, out)
         if g is None:  # no stripes anywhere: nothing to weigh
+            record["gate"] = torch.zeros(B, device=depth.device)
             return depth
+        record["gate"] = g.detach().flatten().float()
         blended = depth + g.to(depth.dtype) * (out - depth)
         if mask is None:
             return blended
@@ -224,24 +257,3 @@ class FPNSuppression(Float32Stage):
         noise = noise_power(depth, amplitude, mask)
         stripes = stripes * self.stripe_scale
         return g * risk_shrinkage(out - depth, weight, noise, stripes, self.centre, mask)
-
-    @torch.jit.unused
-    def gate_values(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None):
-        """(B,) the notch part's per-image gate in [0, 1] (1 for every image without the gate,
-        0 without a notch filter): how much of the notch each image gets. For reports; it runs
-        the filter again."""
-        B = depth.shape[0]
-        if self.filter is None:
-            return torch.zeros(B)
-        if not self.gate:
-            return torch.ones(B)
-        with torch.no_grad():
-            x = depth.float()
-            amp = None if amplitude is None else amplitude.float()
-            mask = valid_mask(x, amp)
-            filtered = self.filter(x, mask)
-            out = filtered
-            if self.fusion is not None and amp is not None:
-                out = self.fusion(filtered, x, amp)
-            g = self._gate(x, amp, mask, filtered, out)
-        return torch.zeros(B) if g is None else g.flatten().cpu()

@@ -1,0 +1,70 @@
+"""The options of a ``tof-fpn clean`` run that belong to no step: files, batches, calibration."""
+
+from __future__ import annotations
+
+from ...runtime.stage import Setting
+from .base import Option
+
+__all__ = ["BATCH", "CALIBRATION_FRAMES", "FILE_OPTIONS", "ROUNDING"]
+
+#: Files per group and frames per compute batch (``batch``): the batches are fixed by the sorted
+#: file list, so that a resumed run or the Ray engine computes every frame in the same batch
+#: (batched torch kernels differ in the last bits between batch sizes).
+BATCH: int = 8
+#: Frames (the first in file order) on which ``auto`` / ``data`` stages are measured when the run
+#: starts (``calibration_frames``).
+CALIBRATION_FRAMES: int = 8
+#: integer outputs: how a corrected depth is rounded to the stored unit
+ROUNDING: tuple[str, ...] = ("dither", "nearest")
+
+_POSITIVE = dict(low=0.0, open_low=True)
+
+FILE_OPTIONS: tuple[Option, ...] = (
+    Option(
+        Setting(
+            "calibration_frames",
+            int,
+            CALIBRATION_FRAMES,
+            "frames measured by data stages",
+            low=1,
+        ),
+        "calibration",
+        "frames",
+    ),
+    Option(
+        Setting("batch", int, BATCH, "files per group, frames per batch", low=1), "files", "batch"
+    ),
+    Option(
+        Setting("depth_scale", float, None, "metres per stored depth unit", **_POSITIVE),
+        "files",
+        "depth_scale",
+    ),
+    Option(
+        Setting("height", int, None, "rows of raw .bin / .raw frames", low=1), "files", "height"
+    ),
+    Option(
+        Setting("width", int, None, "columns of raw .bin / .raw frames", low=1), "files", "width"
+    ),
+    Option(
+        Setting(
+            "rounding",
+            str,
+            "dither",
+            "integer outputs: dither (sub-unit corrections survive in the mean) or nearest",
+            choices=ROUNDING,
+        ),
+        "files",
+        "rounding",
+    ),
+    Option(
+        Setting(
+            "output_scale",
+            float,
+            None,
+            "integer outputs: metres per stored unit, e.g. 0.0001 (default: the input's)",
+            **_POSITIVE,
+        ),
+        "files",
+        "output_scale",
+    ),
+)
