@@ -116,13 +116,19 @@ def test_flags_override_the_file(tmp_path):
 def test_each_stage_subset_builds_what_it_says():
     d, a = _frames()
     empty = build_pipeline(CleanConfig(stage="paper", notch="off"))
-    assert empty.stage("fpn") is None and empty.stage("denoise") is None and torch.equal(empty(d, a)[0], d)
+    assert (
+        empty.stage("fpn") is None
+        and empty.stage("denoise") is None
+        and torch.equal(empty(d, a)[0], d)
+    )
     only = build_pipeline(CleanConfig(notch="off", destripe="columns"))
     assert only.stage("fpn").filter is None and isinstance(only.stage("fpn").destripe, Destripe)
     full = build_pipeline(CleanConfig(stage="paper", destripe="rows", denoise="nlm"))
     info = describe(full)
     assert info["notch"]["order"] == K.DEFAULT_ORDER and info["fusion"]["low"] == K.FUSION_LOW
-    assert isinstance(full.stage("denoise"), NonLocalMeans) and info["destripe"].startswith("dim=(-2,)")
+    assert isinstance(full.stage("denoise"), NonLocalMeans) and info["destripe"].startswith(
+        "dim=(-2,)"
+    )
     no_fusion = build_pipeline(CleanConfig(stage="paper", fusion="off", gate=False))
     assert no_fusion.stage("fpn").fusion is None and no_fusion.stage("fpn").gate is False
 

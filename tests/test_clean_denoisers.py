@@ -37,7 +37,9 @@ def test_clean_offers_every_registered_name():
 def test_each_denoiser_runs_in_the_pipeline_and_lowers_the_error(name):
     depth, amp, truth, holes = _noisy_frame()
     pipe = build_pipeline(CleanConfig(stage="paper", notch="off", denoise=name))
-    assert isinstance(pipe.stage("denoise"), denoise.module_class(name)) and pipe.stage("fpn") is None
+    assert (
+        isinstance(pipe.stage("denoise"), denoise.module_class(name)) and pipe.stage("fpn") is None
+    )
     out, _ = pipe(depth, amp)
     assert out.shape == depth.shape and out.dtype == depth.dtype
     assert torch.isnan(out[0, 0][holes]).all()  # invalid pixels stay invalid
@@ -98,7 +100,9 @@ def test_one_registry_for_clean_and_denoise():
         pipe = build_pipeline(
             CleanConfig(stage="paper", notch="off", denoise="scale_it", denoise_options={})
         )
-        assert isinstance(pipe.stage("denoise").module, Scale) and not denoise.scriptable("scale_it")
+        assert isinstance(pipe.stage("denoise").module, Scale) and not denoise.scriptable(
+            "scale_it"
+        )
         with pytest.raises(
             ValueError, match=r"has no parameter\(s\) \['size'\]; allowed: \['factor'\]"
         ):

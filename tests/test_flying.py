@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from tof_fpn_torch.runtime import FlyingPixels, flying_pixels
-from tof_fpn_torch.runtime.stage import RecordOutputs
 from tof_fpn_torch.runtime.flying import ACTIONS
+from tof_fpn_torch.runtime.stage import RecordOutputs
 
 NOISE = 0.003
 
