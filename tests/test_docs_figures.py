@@ -72,10 +72,11 @@ def figure_mentions(text: str) -> set[str]:
     return out
 
 
-def references(root: Path) -> tuple[dict[str, list[str]], list[tuple[str, Path]]]:
+def references(root: Path) -> tuple[dict[str, set[str]], list[tuple[str, Path]]]:
     """``(figures, links)``: every docs/figures path named outside the registry with the pages
     that name it, and every (page, resolved target) of a link to an image or data file."""
-    figures: dict[str, list[str]] = {}
+    figs = (root / "docs" / "figures").resolve()
+    figures: dict[str, set[str]] = {}
     links: list[tuple[str, Path]] = []
     for page in source_pages(root):
         text = page.read_text(encoding="utf-8")
@@ -85,13 +86,17 @@ def references(root: Path) -> tuple[dict[str, list[str]], list[tuple[str, Path]]
         for rel in figure_mentions(text):
             if not rel.endswith("/") and (root / "docs/figures" / rel).is_dir():
                 rel += "/"  # a folder named without its slash
-            figures.setdefault(rel, []).append(name)
+            figures.setdefault(rel, set()).add(name)
         for target in _LINK.findall(text):
             if re.match(r"[a-z][a-z0-9+.-]*:", target) or target.startswith("#"):
                 continue  # a URL or an anchor on the same page
             path = target.split("#", 1)[0]
+            resolved = (page.parent / path).resolve()
+            if resolved.is_relative_to(figs) and resolved != figs:
+                # ./figures/x.png, ../docs/figures/x.png: a reference like figures/x.png
+                figures.setdefault(resolved.relative_to(figs).as_posix(), set()).add(name)
             if Path(path).suffix.lower() in DATA_SUFFIXES:
-                links.append((name, (page.parent / path).resolve()))
+                links.append((name, resolved))
     return figures, links
 
 
@@ -138,7 +143,7 @@ def missing_references(root: Path) -> list[str]:
     figures, links = references(root)
     listed = registry(root)
     bad = [
-        f"{', '.join(pages)}: docs/figures/{rel}"
+        f"{', '.join(sorted(pages))}: docs/figures/{rel}"
         for rel, pages in sorted(figures.items())
         if not (figs / rel).exists()
     ]
@@ -230,7 +235,7 @@ def test_the_checks_can_fail(tmp_path):
     root = tmp_path
     _write(
         root / "docs/guide.md",
-        "![a](figures/a.png) [table](figures/sub/t.md) `docs/figures/b.json`\n"
+        "![a](./figures/a.png) [table](figures/sub/t.md) `docs/figures/b.json`\n"
         "![gone](figures/gone.png) [data](../data/missing.csv) per case: "
         "`docs/figures/x_<case>.png`, all: `docs/figures/`\n",
     )
