@@ -16,7 +16,7 @@ Frames/s are wall-clock; the shares of decoding, compute and encoding come from 
 timers (the plain loop's own, the manifest's ``read_s`` / ``compute_s`` / ``write_s`` sums, which
 with workers are per-worker times). CPU ms / frame: user + system time of this process and its
 workers (less sensitive than wall time to other load on the machine; the load average is
-recorded). Writes docs/clean_bench.json and prints a Markdown table::
+recorded). Writes docs/figures/clean_bench.json and prints a Markdown table::
 
     python benchmarks/bench_clean.py --frames 96 --repeats 3
 """
@@ -132,7 +132,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=96)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--out", default=str(ROOT / "docs" / "clean_bench.json"))
+    ap.add_argument("--out", default=str(ROOT / "docs" / "figures" / "clean_bench.json"))
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="bench_clean_"))
     try:

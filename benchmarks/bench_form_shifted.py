@@ -17,16 +17,10 @@ share effects a share stated by hand (impulsive 0.1 % of frame-pixels, saturatio
 wrapping 1 % of the scene, flying A 25 % of the depth-edge pixels mixed).
 
 Seeds: development and pilots used 10000-19999 (``--pilot`` defaults to 10000); the benchmark's
-default range starts at 120000: the published result, run once on the current code
-(docs/figures/diagnosis_form_shifted.md), never run during development; a run on new code needs
-unseen seeds (``--seed-offset 130000`` and on). Spent earlier (70000 and 75000 once ran
-at 24 x 32 px in a check of ``--resume``; 80000 on is spent: a first run there was stopped at
-160 recordings, docs/figures/diagnosis_form_shifted_seeds80000.md; 90000-90022 are spent: a
-run there was stopped after 23 amplitude-bias recordings, to mend the speed of the diagnosis
-before the run; 100000 on are spent: the complete run on the code of commit feda3b8,
-docs/figures/diagnosis_form_shifted_seeds100000.md; 110000-110121 are spent: a run there
-stopped after 120 recordings on a crash of the diagnosis, since mended,
-docs/figures/diagnosis_form_shifted_seeds110000.md).
+default range starts at 120000: the published result (docs/figures/diagnosis_form_shifted.md),
+never run during development; a run on new code needs unseen seeds (``--seed-offset 130000`` and
+on). Not unseen: 70000 and 75000 (a check of ``--resume`` at 24 x 32 px) and 80000-119999 (runs
+of earlier code).
 
     python benchmarks/bench_form_shifted.py --workers 2            # 13 x 2 x 2 x 6 + 24 nulls
     python benchmarks/bench_form_shifted.py --workers 2 --resume   # go on with a run cut short
