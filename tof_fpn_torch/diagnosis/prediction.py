@@ -68,25 +68,44 @@ def _baseline_fpn(samples: torch.Tensor, v: dict) -> torch.Tensor:
     return samples + (wn.view(1, n, 1, 1) * p.view(1, 1, 1, w)).to(samples.dtype)
 
 
-_PHOTONS_CACHE: dict = {}
+#: the last scene's unit images: ``(scene, camera key, units)``. The entry holds the scene
+#: itself, so no other scene can take its address while the entry lives; a scene of equal
+#: content (``obs.scene()`` builds a new one on every call) is served too.
+_PHOTONS: list = [None]
+
+
+def _same_scene(a, b) -> bool:
+    """``a`` is ``b`` or has the same depth and reflectance (dtype, device, shape, values)."""
+    if a is b:
+        return True
+    for x, y in ((a.depth, b.depth), (a.reflectance, b.reflectance)):
+        if x.dtype != y.dtype or x.device != y.device or x.shape != y.shape:
+            return False
+        if not torch.equal(x, y):
+            return False
+    return True
 
 
 def _photon_units(cam: Camera, scene) -> tuple[tuple, tuple]:
-    """The unit-responsivity active and ambient samples of ``scene`` and their cache key: the
-    photo-charge is linear in the responsivity and in the ambient irradiance, so they are
-    computed once per scene and camera."""
-    key = (id(scene), float(cam.modulation_frequency), cam.n_phases, float(cam.integration_time))
-    units = _PHOTONS_CACHE.get(key)
-    if units is None:
-        with torch.no_grad():
-            act = Photons(responsivity=1.0).mean_samples(
-                replace(cam, ambient_irradiance=0.0), scene
-            )
-            amb = Photons(responsivity=1.0).mean_samples(
-                replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene
-            )
-        _PHOTONS_CACHE.clear()
-        _PHOTONS_CACHE[key] = units = (act, amb)
+    """The unit-responsivity active and ambient samples of ``scene`` and their cache key (the
+    camera settings they depend on): the photo-charge is linear in the responsivity and in the
+    ambient irradiance, so they are computed once per scene and camera."""
+    key = (
+        float(cam.modulation_frequency),
+        cam.n_phases,
+        float(cam.integration_time),
+        float(cam.illumination_power),
+    )
+    entry = _PHOTONS[0]  # one read: another thread may replace the entry meanwhile
+    if entry is not None and entry[1] == key and _same_scene(entry[0], scene):
+        return entry[2], key
+    with torch.no_grad():
+        act = Photons(responsivity=1.0).mean_samples(replace(cam, ambient_irradiance=0.0), scene)
+        amb = Photons(responsivity=1.0).mean_samples(
+            replace(cam, illumination_power=0.0, ambient_irradiance=1.0), scene
+        )
+    units = (act, amb)
+    _PHOTONS[0] = (scene, key, units)
     return units, key
 
 
