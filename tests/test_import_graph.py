@@ -296,3 +296,29 @@ def test_the_cycles_cover_every_module_of_a_component():
     graph = {"a": {"b": 1, "c": 2}, "b": {"a": 1}, "c": {"a": 1}, "d": {"a": 1}}
     assert import_cycles(graph) == [[["a", "b", "a"], ["c", "a", "c"]]]
     assert strongly_connected({"x": {}}) == [["x"]] and import_cycles({"x": {}}) == []
+
+
+def _reach(graph: dict[str, dict[str, int]], start: str) -> set[str]:
+    seen, todo = set(), [start]
+    while todo:
+        for nxt in graph[todo.pop()]:
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
+def test_the_diagnosis_model_needs_only_the_term_base():
+    """The model receives its terms: it and the prediction reach no term module but
+    ``terms/base.py`` (and the package's ``__init__``) and not the catalogue; no term reaches
+    the model or the catalogue."""
+    graph = import_edges(module_names(PACKAGE))
+    diag = "tof_fpn_torch.diagnosis"
+    terms = {m for m in graph if m.startswith(f"{diag}.terms")}
+    assert len(terms) > 20
+    for top in (f"{diag}.model", f"{diag}.prediction"):
+        reached = _reach(graph, top)
+        assert reached & terms <= {f"{diag}.terms", f"{diag}.terms.base"}, top
+        assert f"{diag}.catalogue" not in reached, top
+    for t in sorted(terms):
+        assert not {f"{diag}.model", f"{diag}.catalogue"} & _reach(graph, t), t
