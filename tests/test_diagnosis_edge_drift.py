@@ -10,7 +10,7 @@ from test_diagnosis_terms import setup  # noqa: F401  (the fixture: a small reco
 from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
 from tof_fpn_torch.diagnosis.fit import evaluate
 from tof_fpn_torch.diagnosis.likelihood import _frame_adjusted, _nll_frames, _nll_pooled
-from tof_fpn_torch.diagnosis.model import predict
+from tof_fpn_torch.diagnosis.prediction import predict
 
 DRIFT = {
     "temporal_drift.depth_step": 0.011,
@@ -23,7 +23,7 @@ DRIFT_TERM = CATALOGUE["temporal_drift"]
 def test_frame_adjusted_statistics_give_the_frames_cost(setup):  # noqa: F811
     """The pooled NLL of the adjusted statistics is the frame-level NLL with the drift."""
     obs, model, ctx, _ = setup
-    m = model.with_effect("temporal_drift", DRIFT)
+    m = model.with_effect(DRIFT_TERM, DRIFT)
     with torch.no_grad():
         pred = predict(m, obs, scene=ctx.scene)
         per_frame = [DRIFT_TERM.frame_means(m.values, obs, m)]
@@ -41,10 +41,10 @@ def test_a_drift_does_not_take_the_edge_mixture_below_any_bound(setup):  # noqa:
     pixels: the NLL per observation stays that of a density (it fell to -1e14 when the mixture
     subtracted the pooled, drift-free cost of its edge pixels)."""
     obs, model, ctx, _ = setup
-    m = model.with_effect("temporal_drift", DRIFT).with_effect(
-        "mixed_pixels", {"mixed_pixels.probability": 0.5}
+    m = model.with_effect(DRIFT_TERM, DRIFT).with_effect(
+        CATALOGUE["mixed_pixels"], {"mixed_pixels.probability": 0.5}
     )
-    without = model.with_effect("temporal_drift", DRIFT)
+    without = model.with_effect(DRIFT_TERM, DRIFT)
     with torch.no_grad():
         both, drift_only = evaluate(m, obs, ctx), evaluate(without, obs, ctx)
     # mixing edge pixels with probability one half changes the NLL by at most the edge pixels'

@@ -10,8 +10,8 @@ import torch
 from test_diagnosis_terms import setup  # noqa: F401  (the fixture: a small recording's model)
 
 from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
-from tof_fpn_torch.diagnosis.model import predict
 from tof_fpn_torch.diagnosis.params import ParamSpec, from_u, to_u
+from tof_fpn_torch.diagnosis.prediction import predict
 
 KINDS = ("lin", "log", "logit", "relgain", "abs", "rootabs")
 
@@ -54,7 +54,7 @@ def test_simulator_term_accepts_every_value_the_fit_can_reach(setup, name):  # n
     term = CATALOGUE[name]
     with torch.no_grad():
         pred = predict(model, obs, scene=ctx.scene)
-    m = model.with_effect(name, term.initial_values(model, obs, ctx, pred)[0])
+    m = model.with_effect(term, term.initial_values(model, obs, ctx, pred)[0])
     for s in term.specs:
         for u in (-1e4, -300.0, 300.0, 1e4):
             try:

@@ -8,8 +8,8 @@ import pytest
 import torch
 from scipy.optimize import nnls as scipy_nnls
 
-from tof_fpn_torch.diagnosis.model import predict
 from tof_fpn_torch.diagnosis.nnls import nnls
+from tof_fpn_torch.diagnosis.prediction import predict
 from tof_fpn_torch.diagnosis.terms.multipath_sources import (
     SOURCE_BLOCK,
     _grid,
@@ -43,6 +43,7 @@ def test_sources_of_one_relaying_patch_are_found_one_by_one():
     without the cosines (the relay's own)."""
     from test_diagnosis import H, W, _recording
 
+    from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
     from tof_fpn_torch.diagnosis.fit import fit
     from tof_fpn_torch.diagnosis.run import _baseline, _fit_baseline, observe
     from tof_fpn_torch.sim import Multipath
@@ -55,7 +56,7 @@ def test_sources_of_one_relaying_patch_are_found_one_by_one():
     rec, scene = _recording(term, seed=3, frames=6)
     obs = observe(rec, scene)
     base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
-    model, _ = fit(base.with_effect("multipath_sources", {}), obs, ctx)
+    model, _ = fit(base.with_effect(CATALOGUE["multipath_sources"], {}), obs, ctx)
     wts = model.profiles["multipath_sources"]
     assert tuple(wts.shape) == (ny, nx)
     assert tuple(int(i) for i in np.unravel_index(int(wts.argmax()), wts.shape)) == (sy, sx)
@@ -133,7 +134,7 @@ def test_a_mirror_floor_is_found_with_its_weight():
     rec = Recording(dep, out.amplitude, dict(META, amplitude_unit="DN"))
     obs = observe(rec, SceneData(depth, rho[0, 0], meta={"source": "test"}))
     base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
-    model, _ = fit(base.with_effect("multipath_sources", {}), obs, ctx)
+    model, _ = fit(base.with_effect(CATALOGUE["multipath_sources"], {}), obs, ctx)
     mirrors = model.profiles["multipath_sources_mirrors"]
     floor = [m for m in mirrors if float(m[1]) > 0.99]
     assert len(floor) == 1 and float(floor[0][3]) == pytest.approx(1.2, abs=0.02)

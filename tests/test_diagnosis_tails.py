@@ -115,7 +115,7 @@ def test_the_member_is_tried_only_on_heavy_tails():
     from test_diagnosis import _recording
 
     from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
-    from tof_fpn_torch.diagnosis.model import predict
+    from tof_fpn_torch.diagnosis.prediction import predict
     from tof_fpn_torch.diagnosis.run import _baseline, _fit_baseline, observe
     from tof_fpn_torch.diagnosis.terms.noise_floor_tails import far_readings
 
@@ -125,7 +125,7 @@ def test_the_member_is_tried_only_on_heavy_tails():
         rec, scene = _recording(jitter, seed=6)
         obs = observe(rec, scene)
         base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
-        model = base.with_effect("noise_floor", {"noise_floor.sigma": 0.025})
+        model = base.with_effect(CATALOGUE["noise_floor"], {"noise_floor.sigma": 0.025})
         with torch.no_grad():
             pred = predict(model, obs, scene=ctx.scene)
         out[name] = (far_readings(obs, ctx, pred), term.initial_values(model, obs, ctx, pred))
@@ -175,7 +175,7 @@ def test_far_readings_leave_out_the_readings_the_outliers_explain():
     from test_diagnosis import _recording
 
     from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
-    from tof_fpn_torch.diagnosis.model import predict
+    from tof_fpn_torch.diagnosis.prediction import predict
     from tof_fpn_torch.diagnosis.run import _baseline, _fit_baseline, observe
     from tof_fpn_torch.diagnosis.terms.noise_floor_tails import far_readings
     from tof_fpn_torch.sim import ImpulsivePixels
@@ -183,7 +183,7 @@ def test_far_readings_leave_out_the_readings_the_outliers_explain():
     rec, scene = _recording(ImpulsivePixels(rate=0.01, level=0.05), seed=8)
     obs = observe(rec, scene)
     base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
-    model = base.with_effect("impulsive_pixels", {"impulsive_pixels.rate": 0.01})
+    model = base.with_effect(CATALOGUE["impulsive_pixels"], {"impulsive_pixels.rate": 0.01})
     with torch.no_grad():
         pred = predict(model, obs, scene=ctx.scene)
     count, expected = far_readings(obs, ctx, pred, 0.01)

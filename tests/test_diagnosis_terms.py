@@ -27,8 +27,8 @@ from tof_fpn_torch.diagnosis.catalogue import CATALOGUE, TERMS, VOCABULARY
 from tof_fpn_torch.diagnosis.data import observe
 from tof_fpn_torch.diagnosis.fit import evaluate, init_model
 from tof_fpn_torch.diagnosis.likelihood import make_context
-from tof_fpn_torch.diagnosis.model import predict
 from tof_fpn_torch.diagnosis.params import from_u, to_u
+from tof_fpn_torch.diagnosis.prediction import predict
 from tof_fpn_torch.diagnosis.terms.base import ENTERS, Term
 from tof_fpn_torch.io import Recording, SceneData
 from tof_fpn_torch.sim import STAGE, Camera, PixelGain, Simulation, synthetic_scene
@@ -235,7 +235,7 @@ def test_term_starts_enters_the_model_and_is_described(setup, name):
         assert all(k.startswith(name + ".") for k in v), (name, v)
         assert {s.key for s in term.specs} <= set(v), (name, v)
         assert all(math.isfinite(float(x)) for x in v.values()), (name, v)
-    m = model.with_effect(name, starts[0])
+    m = model.with_effect(term, starts[0])
     if term.closed_form:
         with torch.no_grad():
             m = term.update_closed_form(m, obs, ctx, predict(m, obs, scene=ctx.scene), "all")
@@ -286,7 +286,7 @@ def test_two_forms_of_one_effect_make_one_stage(setup):
         for term in (phys, member):
             with torch.no_grad():
                 pred = predict(m, obs, scene=ctx.scene)
-            m = m.with_effect(term.name, term.initial_values(m, obs, ctx, pred)[0])
+            m = m.with_effect(term, term.initial_values(m, obs, ctx, pred)[0])
             if term.closed_form:
                 with torch.no_grad():
                     pred = predict(m, obs, scene=ctx.scene)

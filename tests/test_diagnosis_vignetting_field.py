@@ -67,6 +67,7 @@ def test_a_fall_off_in_the_span_is_recovered():
     RMS)."""
     from test_diagnosis import H, W, _recording
 
+    from tof_fpn_torch.diagnosis.catalogue import CATALOGUE
     from tof_fpn_torch.diagnosis.fit import fit
     from tof_fpn_torch.diagnosis.run import _baseline, _fit_baseline, observe
     from tof_fpn_torch.sim import Vignetting
@@ -78,7 +79,7 @@ def test_a_fall_off_in_the_span_is_recovered():
     rec, scene = _recording(Vignetting(gain_map=g), seed=6)
     obs = observe(rec, scene)
     base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
-    model, _ = fit(base.with_effect("vignetting_field", {}), obs, ctx)
+    model, _ = fit(base.with_effect(CATALOGUE["vignetting_field"], {}), obs, ctx)
     got = model.profiles["vignetting_field"]
     ratio = (got / g) / (got / g).mean()  # the light's overall scale is the responsivity's
     assert float((ratio - 1).abs().max()) < 0.02  # the planted loss reaches 21 %

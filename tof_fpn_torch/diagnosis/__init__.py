@@ -2,8 +2,9 @@
 
 from .catalogue import CATALOGUE, VOCABULARY, implemented
 from .data import Observations, estimate_scene, observe
-from .model import DiagnosisModel, Prediction, predict
+from .model import DiagnosisModel
 from .persist import load_model, save_model
+from .prediction import Prediction, predict
 from .run import Diagnosis, diagnose
 
 __all__ = [

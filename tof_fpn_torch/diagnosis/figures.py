@@ -10,7 +10,7 @@ import torch
 
 from .. import constants as K
 from ..plotting import pyplot
-from .model import predict
+from .prediction import predict
 
 __all__ = ["FIGURE_DPI", "figures"]
 

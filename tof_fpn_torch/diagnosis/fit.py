@@ -9,14 +9,16 @@ estimated in closed form (``Term.closed_form``: the column / row delay profiles 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
 from .. import constants as K
 from .data import Observations
 from .likelihood import Context, n_observations, nll
-from .model import DiagnosisModel, predict
+from .model import DiagnosisModel
 from .params import from_u, to_u
+from .prediction import predict
 from .readout import READOUT_KEYS, update_readout
 
 __all__ = [
@@ -102,7 +104,7 @@ def fit(
     model = model.copy()
     specs = [s for s in model.specs() if free is None or s.key in free]
     n_obs = max(n_observations(obs, ctx, sel), 1.0)
-    closed = [t for t in model.terms() if t.closed_form]
+    closed = [t for t in model.terms if t.closed_form]
     for outer in range(rounds if closed else 1):
         with torch.no_grad():
             for t in closed:
@@ -165,7 +167,7 @@ def _objective(model, obs, ctx, sel, specs, n_obs):
     keys = [s.key for s in specs]
     charges = [s.key for s in specs if s.charge]
     # a stated charge (not fitted) is stated in DN: it moves with the gain too
-    charges += [s.key for t in model.terms() for s in t.specs if s.key in model.fixed and s.charge]
+    charges += [s.key for t in model.terms for s in t.specs if s.key in model.fixed and s.charge]
     u0 = torch.tensor([to_u(s, model.values[s.key]) for s in specs], dtype=torch.float64)
     g0 = model.values["camera.conversion_gain"]
 
@@ -360,14 +362,12 @@ def robust_start(model: DiagnosisModel, obs: Observations, ctx: Context, base: D
     spread are within ``INLIER_Z`` sigma of the fitted ``base``, twice. Returns ``(values,
     model)``; ``(None, None)`` when fewer than 1 % of the depth pixels are outside (nothing to
     protect from: :func:`misfits_grossly`)."""
-    from dataclasses import replace as _replace
-
     ok = _inliers(base, obs, ctx)
     if not _gross(ok, ctx):
         return None, None
     cur = model
     for _ in range(2):
-        sub = _replace(ctx, mask_d=ctx.mask_d & ok, mask_a=ctx.mask_a & ok, _frames={})
+        sub = replace(ctx, mask_d=ctx.mask_d & ok, mask_a=ctx.mask_a & ok, _frames={})
         cur, _ = fit(cur, obs, sub)
         ok = _inliers(cur, obs, ctx)
     return cur.values, cur

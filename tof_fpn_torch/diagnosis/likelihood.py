@@ -149,7 +149,7 @@ def _pick(x, idx):
 
 def nll(model, obs: Observations, ctx: Context, pred, v: dict, sel: str = "all") -> torch.Tensor:
     """Frame-level NLL (nats) of the selected pixels of both channels."""
-    terms = model.terms()
+    terms = model.terms
     per_frame = [x for x in (t.frame_means(v, obs, model) for t in terms) if x is not None]
     rate = next((r for r in (t.outlier_rate(v) for t in terms) if r is not None), None)
     mixed = next((r for r in (t.edge_mixture(v) for t in terms) if r is not None), None)

@@ -190,7 +190,7 @@ def statistics(obs: Observations, pred, ctx) -> dict[str, Stat]:
 def simulate_observations(model, obs: Observations, ctx, seed: int):
     """One bootstrap recording of ``model`` seen as :class:`Observations` (same masks, scene)."""
     from .data import estimate_scene
-    from .model import predict
+    from .prediction import predict
 
     sim = model.simulation()
     scene32 = ctx.scene.to(dtype=torch.float32)

@@ -19,7 +19,8 @@ import torch
 
 from .catalogue import CATALOGUE, Term, implemented
 from .fit import FIT_ITERS, evaluate, fit, hessian
-from .model import CORE_SPECS, DiagnosisModel, predict
+from .model import CORE_SPECS, DiagnosisModel
+from .prediction import predict
 from .threads import map_threads
 
 __all__ = [
@@ -70,7 +71,7 @@ def _try(model: DiagnosisModel, term: Term, init: list[dict], obs, ctx) -> Diagn
     closed-form term is taken as it is."""
     best, best_val = None, math.inf
     for v in init:
-        cand = model.with_effect(term.name, v)
+        cand = model.with_effect(term, v)
         if term.closed_form:
             return cand
         try:
@@ -234,7 +235,7 @@ def _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free, share=No
     # the gain is what the term itself brings: against the current model fitted on the same
     # half, and against the candidate with the term switched off (its other values kept)
     off = cand.copy()
-    off.effects.remove(name)
+    off.terms = [t for t in off.terms if t.name != name]
     gain_train = min(nll_train, evaluate(off, obs, ctx, "train")) - c_train
     gain = min(nll_test, evaluate(off, obs, ctx, "test")) - c_test
     if share is not None:

@@ -121,7 +121,7 @@ def load_model(source) -> DiagnosisModel:
     return DiagnosisModel(
         cam,
         values,
-        effects,
+        [CATALOGUE[e] for e in effects],
         profiles,
         float(data.get("frame_interval", 1.0)),
         float(data.get("impulsive_level", 1e-6)),

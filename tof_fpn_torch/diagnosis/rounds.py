@@ -12,8 +12,8 @@ import torch
 from .catalogue import CATALOGUE, implemented
 from .fit import evaluate, fit, misfits_grossly
 from .locate import locate, statistics
-from .model import predict
 from .naming import FORM_TOLERANCE, MIN_DAIC, rank
+from .prediction import predict
 from .threads import map_threads
 
 __all__ = ["RETRY_GAIN", "RETRY_MAX", "forward", "prune"]

@@ -15,9 +15,10 @@ from .data import Observations, observe
 from .fit import FIT_TOL, evaluate, fit, init_model, robust_start
 from .likelihood import Context, make_context
 from .locate import Stat, bootstrap, locate, statistics
-from .model import DiagnosisModel, predict
+from .model import DiagnosisModel
 from .naming import rank
 from .persist import adapt_model, load_model
+from .prediction import predict
 from .rounds import forward, prune
 from .summary import baseline_summary, describe_effects, fit_summary, report_content
 
@@ -187,7 +188,7 @@ def _baseline(obs: Observations, baseline) -> DiagnosisModel:
             extra = term.baseline_without_scene()
         if extra is not None:
             values, note = extra
-            model = model.with_effect(term.name, values)
+            model = model.with_effect(term, values)
             if fixed:  # what the recording states is not fitted
                 model.fixed = model.fixed | frozenset(values)
             obs.notes.append(note)

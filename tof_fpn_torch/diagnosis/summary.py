@@ -11,7 +11,7 @@ from .catalogue import CATALOGUE
 from .describe import where
 from .likelihood import n_observations
 from .locate import locate
-from .model import predict
+from .prediction import predict
 
 __all__ = [
     "also_consistent",

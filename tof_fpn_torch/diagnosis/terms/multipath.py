@@ -17,6 +17,7 @@ import torch
 from ... import constants as K
 from ...sim import Multipath, Photons, SimState
 from ..params import SCALE_CYCLIC, ParamSpec
+from ..prediction import predict
 from .base import Term, depth_residuals, least_squares, r4
 
 __all__ = [
@@ -144,8 +145,6 @@ class MultipathTerm(Term):
     def _scene_starts(self, model, obs, ctx, p) -> list[dict]:
         # the relay within the scene: its depth shift per unit efficiency (a small one, linear)
         # on a grid of fields of view and near-field lengths, least squares for the efficiency
-        from ..model import predict  # late: the model imports the catalogue
-
         rd, wd = depth_residuals(obs, ctx, p)
         md = ctx.mask_d
         eps = SCALE_CYCLIC * 0.1
@@ -160,7 +159,7 @@ class MultipathTerm(Term):
                     "multipath.near_field": near,
                 }
                 with torch.no_grad():
-                    pg = predict(model.with_effect(self.name, geo), obs, scene=ctx.scene)
+                    pg = predict(model.with_effect(self, geo), obs, scene=ctx.scene)
                 x = ((pg.mu_d - p.mu_d) / eps)[md]
                 b = least_squares(x, rd, wd)
                 if b > 0 and math.isfinite(b):

@@ -51,6 +51,7 @@ from ...sim import Multipath
 from ...sim.multipath import source_step
 from ...sim.relay import mirror_gains, mirror_planes, relay_matrix
 from ..nnls import nnls
+from ..prediction import predict
 from ..readout import rotated_residuals
 from .base import ClosedFormMapTerm, r4
 from .multipath import FIELDS_OF_VIEW, relay_cached
@@ -230,8 +231,6 @@ def _gain(t) -> float:
 def update_sources(model, obs, ctx, pred, sel: str = "all"):
     """``model`` with the source weights and geometry estimated in closed form from the
     residuals of ``sel`` pixels against the model without the relay (module docstring)."""
-    from ..model import predict  # late: the model imports the catalogue
-
     h, w = obs.shape
     k = 4 * math.pi * float(model.camera.modulation_frequency) / K.SPEED_OF_LIGHT_AIR
     step, ny, nx = _grid(h, w)

@@ -105,7 +105,7 @@ class NoiseFloorTailsTerm(Term):
         if obs.frames < 2:
             return []
         rate = next(
-            (r for r in (t.outlier_rate(model.values) for t in model.terms()) if r is not None),
+            (r for r in (t.outlier_rate(model.values) for t in model.terms) if r is not None),
             None,
         )
         count, expected = far_readings(obs, ctx, pred, rate)

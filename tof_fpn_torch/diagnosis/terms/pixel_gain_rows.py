@@ -27,6 +27,7 @@ import math
 import torch
 
 from ...sim import PixelGain
+from ..prediction import predict
 from ..readout import OUTLIER_SIGMA, random_effect_variance
 from ..signature import FINE_SCALE_PX
 from .base import ClosedFormMapTerm, r4
@@ -98,8 +99,6 @@ def _slab_weights(b: torch.Tensor, c: torch.Tensor, s2: float, steps: int = 50):
 def update_rows(model, obs, ctx, pred, sel: str = "all"):
     """``model`` with the row gains estimated on the ``sel`` pixels against the model without
     the member."""
-    from ..model import predict  # late: the model imports the catalogue
-
     with torch.no_grad():
         bare = predict(model.without(_KEY), obs, scene=ctx.scene)
         mu = bare.mu_a.detach()

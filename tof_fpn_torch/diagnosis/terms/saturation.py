@@ -17,6 +17,7 @@ import torch
 from ... import constants as K
 from ...sim import Saturation
 from ..params import ParamSpec
+from ..prediction import predict
 from .base import Term, r4
 
 __all__ = ["START_QUANTILES", "SaturationTerm", "clipped_share", "peak_samples", "start_levels"]
@@ -112,8 +113,6 @@ def clipped_share(model, obs, name: str, level: float) -> float:
     """The chance that a pixel's largest raw sample, with its shot and read noise, passes
     ``level`` (e-) in a frame, averaged over the pixels; the samples as the model predicts them
     without its term ``name``."""
-    from ..model import predict  # late: the model imports the catalogue
-
     v = model.values
     with torch.no_grad():
         p0 = predict(model.without(name), obs)

@@ -31,7 +31,7 @@ def frame_profiles(model, obs, ctx, pred, sel: str = "all", skip: str = ""):
     v = model.values
     shift = torch.zeros(obs.frames, 1, dtype=torch.float64)
     factor = torch.ones(obs.frames, 1, dtype=torch.float64)
-    for t in model.terms():
+    for t in model.terms:
         if t.name == skip:
             continue
         x = t.frame_means(v, obs, model)

@@ -24,6 +24,7 @@ import torch
 
 from ...sim import Vignetting
 from ..nnls import nnls
+from ..prediction import predict
 from .base import ClosedFormMapTerm, r4
 
 __all__ = ["RAMPS", "SECTORS", "VignettingFieldTerm", "loss_basis"]
@@ -58,8 +59,6 @@ def loss_basis(h: int, w: int, yx: torch.Tensor | None = None) -> torch.Tensor:
 def update_field(model, obs, ctx, pred, sel: str = "all"):
     """``model`` with the loss weights (and the light's scale) fitted in closed form on the
     ``sel`` pixels against the model without the member (module docstring)."""
-    from ..model import predict  # late: the model imports the catalogue
-
     h, w = obs.shape
     with torch.no_grad():
         bare = predict(model.without(_KEY), obs, scene=ctx.scene)
