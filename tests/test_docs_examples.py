@@ -40,6 +40,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from tof_fpn_torch.clean import steps as clean_steps
+
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -189,6 +191,7 @@ def test_page_runs_as_written(page, tmp_path, monkeypatch, capsys):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # on a shared machine more threads wait for each other (docs/clean.md)
     namespace: dict = {"__name__": "__docs__"}
+    registered = [s.name for s in clean_steps.steps()]
     try:
         for lang, code, mark in blocks(text):
             if mark and mark[0] == "file":
@@ -206,6 +209,9 @@ def test_page_runs_as_written(page, tmp_path, monkeypatch, capsys):
                     _run_command(line, capsys)
     finally:
         torch.set_num_threads(threads)
+        for step in clean_steps.steps():  # a page that registers a step (adding-a-stage.md)
+            if step.name not in registered:
+                clean_steps.unregister(step.name)
 
 
 def test_blocks_are_parsed():
