@@ -9,7 +9,9 @@ What it checks, on a striped low-sensing scene with holes of every kind:
 - the inputs are not modified;
 - invalid pixels (NaN, +-inf, 0, negative depth; NaN, inf or negative amplitude) come out bit for
   bit;
-- each frame of a batch comes out as it does alone (batch independence);
+- each frame of a batch comes out as it does alone (batch independence); for a stage whose batch
+  is a sequence in time (``sequence = True``), each prefix of the frames as it does in the whole
+  (causality);
 - float64 in, float64 out;
 - TorchScript (``scriptable``): the scripted stage's ``forward`` and ``run`` equal eager;
 - on a CUDA device, where there is one, the same as on the CPU.
@@ -28,7 +30,7 @@ __all__ = ["check_stage", "scene"]
 TOL = 1e-5
 
 
-def scene(b: int = 2, h: int = 36, w: int = 44, seed: int = 0, dtype=torch.float32):
+def scene(b: int = 3, h: int = 36, w: int = 44, seed: int = 0, dtype=torch.float32):
     """(B, 1, H, W) depth in metres (a slanted plane with a step, column stripes at pi and
     2 pi / 3, noise following 1 / A) and amplitude (20-300), with holes of every kind."""
     g = torch.Generator().manual_seed(seed)
@@ -97,12 +99,14 @@ def check_stage(
     _check_record(stage, record, depth)
     bad = _invalid(depth, a)
     assert _bits_equal(out[bad], depth[bad]), "an invalid pixel changed"
-    for i in range(depth.shape[0]):  # batch independence
+    for i in range(depth.shape[0]):
+        # independent frames: each alone as in the batch; a sequence: causal, each prefix alone
+        part = slice(0, i + 1) if type(stage).sequence else slice(i, i + 1)
         with torch.no_grad():
-            one, rec_one = stage.run(depth[i : i + 1], None if a is None else a[i : i + 1])
-        _close(one, out[i : i + 1], f"frame {i} alone differs from its batch")
+            one, rec_one = stage.run(depth[part], None if a is None else a[part])
+        _close(one, out[part], f"frames {part} alone differ from the batch")
         for name, value in rec_one.items():
-            _close(value, record[name][i : i + 1], f"record {name!r} of frame {i} alone")
+            _close(value, record[name][part], f"record {name!r} of frames {part} alone")
     if float64:
         d64 = depth.double()
         with torch.no_grad():

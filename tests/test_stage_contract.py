@@ -17,6 +17,7 @@ from tof_fpn_torch.runtime import (
     FixedPatternCorrection,
     FlyingPixels,
     FPNSuppression,
+    TemporalSequence,
 )
 from tof_fpn_torch.runtime.stage import RecordOutputs, Setting, Stage, check_settings
 
@@ -36,6 +37,7 @@ STAGES = {
     "complex pattern": lambda: ComplexPatternCorrection(
         torch.full((W,), 0.5), torch.full((W,), -0.3), modulation_frequency_hz=20e6
     ),
+    "temporal": lambda: TemporalSequence(sigma=0.002, noise_k=0.5, persistence=2),
     **{f"flying ({a})": (lambda a=a: FlyingPixels(a)) for a in ("mark", "invalidate", "reassign")},
 }
 

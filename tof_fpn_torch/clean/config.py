@@ -211,16 +211,17 @@ def config_to_toml(config: CleanConfig, version: bool = True) -> str:
     lines = []
     if version:
         lines += ["[tof_fpn_torch]", f"version = {_toml_value(__version__)}", ""]
+    values = config.values()
     for table, keys in _tables().items():
         lines.append(f"[{table}]")
         for key, name in keys.items():
-            v = getattr(config, name)
+            v = values[name]
             if v is not None:
                 lines.append(f"{key} = {_toml_value(v)}")
         lines.append("")
     for table, name in _free_tables().items():
         lines.append(f"[{table}]")
-        free = getattr(config, name)
+        free = values[name]
         for key in sorted(free):
             lines.append(f"{key} = {_toml_value(free[key])}")
     return "\n".join(lines) + "\n"

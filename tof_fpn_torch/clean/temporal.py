@@ -1,6 +1,6 @@
 """``tof-fpn clean --temporal``: the temporal filter over the frames of each multi-frame file.
 
-The stage (:class:`~tof_fpn_torch.runtime.TemporalFilter`) runs after the FPN stage and the
+The stage (:class:`~tof_fpn_torch.runtime.TemporalSequence`) runs after the FPN stage and the
 denoiser, frame after frame in file order, its state carried from frame to frame within one frame
 set (a recording ``.h5`` / ``.mkv`` / bag, an HDF5 group, a multi-frame TIFF or ``.npy``) and
 started afresh for the next. A frame set of one frame has no time order to filter over: nothing
@@ -22,15 +22,15 @@ import numpy as np
 import torch
 
 from .. import constants as K
-from ..runtime import TemporalFilter, valid_mask
+from ..runtime import TemporalSequence, valid_mask
 from ..runtime.noise import estimate_noise_k, estimate_sigma
 
 __all__ = ["apply_temporal", "temporal_lines", "temporal_module"]
 
 
-def temporal_module(alpha: float, guard: float, persistence: int) -> TemporalFilter:
+def temporal_module(alpha: float, guard: float, persistence: int) -> TemporalSequence:
     """The stage's settings as a module (checked; ``sigma`` and ``noise_k`` are set per set)."""
-    return TemporalFilter(alpha=alpha, guard=guard, persistence=persistence)
+    return TemporalSequence(alpha=alpha, guard=guard, persistence=persistence)
 
 
 def _noise(depth: torch.Tensor, amplitude: torch.Tensor) -> tuple[float, float, str]:
@@ -47,7 +47,7 @@ def _noise(depth: torch.Tensor, amplitude: torch.Tensor) -> tuple[float, float, 
 
 
 def apply_temporal(
-    settings: TemporalFilter,
+    settings: TemporalSequence,
     depth: torch.Tensor,
     amplitude: torch.Tensor,
     timestamps_s: np.ndarray | None = None,
@@ -60,16 +60,10 @@ def apply_temporal(
     if timestamps_s is not None and not bool(np.all(np.diff(timestamps_s) > 0)):
         return depth, {"applied": False, "frames": t, "reason": "timestamps do not increase"}
     sigma, k, how = _noise(depth[:1], amplitude[:1])
-    module = TemporalFilter(settings.alpha, settings.guard, sigma, k, settings.persistence)
-    state = module.initial_state(depth[:1])
-    frames, restarts = [], 0
+    module = TemporalSequence(settings.alpha, settings.guard, sigma, k, settings.persistence)
     with torch.no_grad():
-        for i in range(t):
-            y, new = module(depth[i : i + 1], state, amplitude[i : i + 1])
-            c = depth.shape[1]
-            restarts += int(((new[:, c : 2 * c] == 1.0) & (state[:, c : 2 * c] > 0)).sum())
-            frames.append(y)
-            state = new
+        out, rec = module.run(depth, amplitude)
+    restarts = int(rec["restarted"].sum())
     record = {
         "applied": True,
         "frames": t,
@@ -78,7 +72,7 @@ def apply_temporal(
         "noise_k": k,
         "restarts": restarts,  # guard restarts after the first frame (motion and false alarms)
     }
-    return torch.cat(frames), record
+    return out, record
 
 
 def temporal_lines(records: list[dict]) -> list[str]:

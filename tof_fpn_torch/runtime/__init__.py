@@ -16,6 +16,10 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.complex_pattern`: :class:`ComplexPatternCorrection` (a calibrated complex-domain pattern).
 - :mod:`.temporal`: :func:`temporal_filter`, :class:`TemporalFilter` (recordings: a causal
   recursive filter with a motion guard, its state passed in and out).
+- :mod:`.temporal_sequence`: :class:`TemporalSequence` (the temporal filter over one recording's
+  frames, the batch as time: the stage contract's form).
+- :mod:`.stage`: the stage contract (:class:`~.stage.Stage`, :class:`~.stage.Setting`): how every
+  stage here is written.
 - :mod:`.flying`: :func:`flying_pixels`, :class:`FlyingPixels` (mixed pixels at depth edges: flags,
   a confidence map, invalidate or reassign).
 """
@@ -28,6 +32,7 @@ from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
 from .suppression import FPNSuppression
 from .temporal import TemporalFilter, promised_noise_factor, temporal_filter, temporal_state
+from .temporal_sequence import TemporalSequence
 from .trainable import KeepZeros, TrainableFusion, freeze, keep_zeros
 from .validity import all_valid, valid_mask
 
@@ -39,6 +44,7 @@ __all__ = [
     "FPNSuppression",
     "FixedPatternCorrection",
     "TemporalFilter",
+    "TemporalSequence",
     "FlyingPixels",
     "all_valid",
     "amplitude_fusion",

@@ -180,12 +180,14 @@ class Stage(nn.Module):
         - :meth:`run`: ``(frame, record)``; :meth:`forward`: the frame, (B, C, H, W).
     """
 
-    __jit_ignored_attributes__ = ["settings", "record"]
+    __jit_ignored_attributes__ = ["settings", "record", "sequence"]
 
     #: the declared options (:class:`Setting`)
     settings: tuple = ()
     #: the declared entries of :meth:`run`'s record (:class:`RecordField`)
     record: tuple = ()
+    #: the batch is one recording's frames in time order (a causal stage), not independent frames
+    sequence: bool = False
 
     def forward(self, depth: torch.Tensor, amplitude: torch.Tensor | None = None) -> torch.Tensor:
         return self.run(depth, amplitude)[0]
