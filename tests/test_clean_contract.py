@@ -79,3 +79,27 @@ def test_a_config_round_trips_through_toml():
     back = config_from_dict(tomllib.loads(config_to_toml(c)))
     assert back == c and back.temporal_guard == float("inf")
     assert [s.name for s in steps()] == ["pattern", "fpn", "flying", "denoise", "temporal"]
+
+
+def test_the_guide_lists_every_key():
+    """docs/clean.md's configuration file names every table and key the steps declare."""
+    import re
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "clean.md").read_text()
+    block = re.search(r"<!-- docs-test: file clean.toml -->\s*```toml\n(.*?)```", page, re.S)
+    assert block
+    listed, table = set(), None
+    for line in block.group(1).splitlines():
+        m = re.match(r"\[(\w+)\]", line)
+        if m:
+            table = m.group(1)
+            listed.add((table, "*"))
+            continue
+        m = re.match(r"#?\s*(\w+)\s*=", line)
+        if m:
+            listed.add((table, m.group(1)))
+    declared = {
+        (o.table, "*") if isinstance(o, TableOption) else (o.table, o.key)
+        for o in all_options().values()
+    }
+    assert declared <= listed, sorted(declared - listed)
