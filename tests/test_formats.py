@@ -14,6 +14,7 @@ from test_io_formats import PAIRS  # the round trips of every format with a writ
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
+from tof_fpn_torch.io import _table
 from tof_fpn_torch.io import formats as F
 from tof_fpn_torch.io.stored import read_frame_sets
 
@@ -59,8 +60,8 @@ def test_a_ros2_bag_folder_is_a_file_of_its_format(tmp_path):
 
 
 def test_a_taken_suffix_or_name_is_refused_and_a_new_format_is_found(monkeypatch):
-    monkeypatch.setattr(F, "_FORMATS", dict(F._FORMATS))
-    monkeypatch.setattr(F, "_BY_SUFFIX", dict(F._BY_SUFFIX))
+    monkeypatch.setattr(_table, "_FORMATS", dict(_table._FORMATS))  # the test's own table
+    monkeypatch.setattr(_table, "_BY_SUFFIX", dict(_table._BY_SUFFIX))
     with pytest.raises(ValueError, match=r"taken: \{'\.npy': 'npy'\}"):
         F.register(F.FileFormat("mine", F.PAIR_MEMBER, "my arrays", (".npy",)))
     with pytest.raises(ValueError, match="'png' is registered already"):
