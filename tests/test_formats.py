@@ -178,3 +178,40 @@ def test_the_docs_show_the_table_of_the_code():
         "docs/io.md's table of formats differs from the code: paste "
         "tof_fpn_torch.io.formats.markdown_table() between the markers"
     )
+
+
+def test_one_decoder_per_format_the_tensor_and_stored_readers_agree(tmp_path):
+    """``read_pair`` (tensors) and ``read_frame_sets`` (as stored) decode a file the same way:
+    the same values, and the same files refused."""
+    from PIL import Image
+
+    from tof_fpn_torch.io.stored import frame_set_tensors
+
+    rng = np.random.default_rng(5)
+    mm = rng.integers(0, 4000, (2, 3, 4)).astype(np.uint16)
+    counts = rng.integers(0, 4000, (2, 3, 4)).astype(np.uint16)
+    np.save(tmp_path / "a_depth.npy", mm)
+    np.save(tmp_path / "a_amplitude.npy", counts)
+    np.savez(tmp_path / "b.npz", depth=mm, amplitude=counts)
+    tio.write_hdf5(tmp_path / "c.h5", tio.read_npy(tmp_path / "a_depth.npy", allow_empty=True),
+                   tio.read_npy(tmp_path / "a_amplitude.npy", "amplitude"), depth_scale=0.002)  # fmt: skip
+    Image.fromarray(mm[0]).save(tmp_path / "d_depth.png")
+    Image.fromarray(counts[0]).save(tmp_path / "d_amplitude.png")
+    for depth_path in ("a_depth.npy", "b.npz", "c.h5", "d_depth.png"):
+        amp = depth_path.replace("_depth", "_amplitude") if "_depth" in depth_path else None
+        args = (tmp_path / depth_path, None if amp is None else tmp_path / amp)
+        d, a = tio.read_pair(*args, allow_empty=True)
+        (fs,) = read_frame_sets(*args)
+        d2, a2 = frame_set_tensors(fs, allow_empty=True)
+        assert np.array_equal(d.numpy(), d2.numpy(), equal_nan=True), depth_path
+        assert np.array_equal(a.numpy(), a2.numpy()), depth_path
+    assert fs.depth.dtype == np.uint16 and np.nanmax(d.numpy()) == np.float32(mm[0].max() * 1e-3)
+    # a palette image is colour, a JPEG named .png is not a PNG: refused on both sides
+    Image.fromarray(mm[0].astype(np.uint8)).convert("P").save(tmp_path / "p_depth.png")
+    Image.fromarray(mm[0].astype(np.uint8)).save(tmp_path / "j_depth.png", format="JPEG")
+    for bad, needle in (("p_depth.png", "single-channel integer"), ("j_depth.png", "not a PNG")):
+        amp = tmp_path / "d_amplitude.png"
+        with pytest.raises(tio.FormatError, match=needle):
+            tio.read_png(tmp_path / bad, depth_scale=1e-3)
+        with pytest.raises(tio.FormatError, match=needle):
+            read_frame_sets(tmp_path / bad, amp, depth_scale=1e-3)
