@@ -12,8 +12,12 @@ camera's own units**. Every writer takes the same and stores the file's own dtyp
 mm with 0 for invalid by default), so integer files round-trip exactly. docs/io.md lists the
 formats, their units and what each reader can and cannot do.
 
+- :mod:`.formats` -- the table of file formats: each format's suffixes (or naming rule), what
+  it holds, its reader and writer and the optional extra it needs; :func:`format_for` chooses
+  the format of a file for every tool of the package.
 - :mod:`.numpy_files` -- ``.npy`` / ``.npz``; :mod:`.images` -- 16-bit PNG, TIFF;
-  :mod:`.hdf5` -- HDF5; :mod:`.raw` -- raw uint16 LE frames; :mod:`.pairs` -- by suffix.
+  :mod:`.hdf5` -- HDF5; :mod:`.raw` -- raw uint16 LE frames; :mod:`.pairs` -- by suffix;
+  :mod:`.stored` -- files as stored, written back with another depth (``tof-fpn clean``).
 - :mod:`.captures` -- ADI ADTF3175 (depth + IR, interleaved), Kinect v2 P0 tables;
   :mod:`.matroska` -- Azure Kinect ``.mkv`` (PyAV); :mod:`.rosbag` -- ROS 1 / ROS 2 bags,
   RealSense recordings (rosbags); :mod:`.camera_files` -- camera files by name (containers,
@@ -35,6 +39,7 @@ from .captures import (
     write_kinect_v2_p0,
 )
 from .dataset import FrameDataset, find_frames
+from .formats import FileFormat, MissingExtraError, format_for
 from .hdf5 import read_hdf5, write_hdf5
 from .images import read_png, read_tiff, write_png, write_tiff
 from .matroska import read_azure_kinect_mkv
@@ -55,13 +60,16 @@ from .scene import SceneData, read_scene, scene_from_sim, write_scene
 
 __all__ = [
     "FORMAT_VERSION",
+    "FileFormat",
     "METRES_PER_MM",
     "REQUIRED_META",
     "FormatError",
     "FrameDataset",
+    "MissingExtraError",
     "Recording",
     "SceneData",
     "find_frames",
+    "format_for",
     "read_adi_depth_ir",
     "read_adi_interleaved",
     "read_any_recording",

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ __all__ = [
     "METRES_PER_MM",
     "UINT16_MAX",
     "FormatError",
+    "FrameSet",
     "amplitude_from_stored",
     "amplitude_to_stored",
     "as_frames",
@@ -44,6 +46,7 @@ __all__ = [
     "existing_file",
     "output_path",
     "stored_frames",
+    "stored_scale",
 ]
 
 #: metres per millimetre: the default unit of integer depth files
@@ -57,6 +60,40 @@ DEPTH_DTYPES: tuple[str, ...] = ("uint16", "float32")
 class FormatError(ValueError):
     """A file that cannot be decoded as the format it claims (truncated, corrupt, wrong layout,
     wrong dtype). A :class:`ValueError`, so ``except ValueError`` catches it too."""
+
+
+@dataclass
+class FrameSet:
+    """Depth and amplitude frames of one file (or one HDF5 group), as stored.
+
+    Attributes:
+        key: ``""`` for single-set files; the HDF5 group path (``""`` for the root).
+        depth: (T, H, W) stored depth, the file's dtype (units of ``depth_scale`` m).
+        amplitude: (T, H, W) stored amplitude, the file's dtype (camera units).
+        depth_scale: metres per stored depth unit.
+        shape: the stored shape of the depth, (H, W) or (T, H, W), written back as it was.
+        camera: the camera profile (:mod:`tof_fpn_torch.cameras`) the file comes from, where
+            its format or name tells (``azure_kinect``, ``realsense``, ``adtf3175``, a
+            recording's ``meta["camera"]``), else None.
+        meta, timestamps_s: a recording container's meta and (T,) timestamps, else None.
+    """
+
+    key: str
+    depth: np.ndarray
+    amplitude: np.ndarray
+    depth_scale: float
+    shape: tuple[int, ...]
+    camera: str | None = None
+    meta: dict | None = None
+    timestamps_s: np.ndarray | None = None
+
+
+def stored_scale(arr: np.ndarray, depth_scale) -> float:
+    """Metres per stored unit of ``arr``: ``depth_scale`` if given, else 1 mm for integer and
+    1 m for floating arrays."""
+    if depth_scale is not None:
+        return check_scale(depth_scale)
+    return METRES_PER_MM if arr.dtype.kind in "ui" else 1.0
 
 
 def existing_file(path, what: str) -> Path:

@@ -10,24 +10,42 @@
   :func:`read_kinect_v2_p0` returns radians in [0, 2 pi) / :func:`write_kinect_v2_p0`.
 
 All readers return float32 (B, C, H, W) CPU tensors with the units stated on each.
+
+The ADI files are also found by their vendor names (:func:`vendor_name`; ``<H>x<W>`` is rows x
+columns, any size, ``.bin`` or ``.raw``, any case):
+
+* ``<name>_depth_u16le_<H>x<W>.bin`` + ``<name>_ir_u16le_<H>x<W>.bin``: depth (mm) + IR (counts);
+* ``<name>_interleaved_<H>x<W>.bin``: the interleaved frame.
+
+:func:`adi_pair_frame_sets` and :func:`adi_interleaved_frame_sets` read such files as stored
+(what ``tof-fpn clean`` reads, camera ``adtf3175``, the size from the name);
+:func:`adi_interleaved_write_like` writes an interleaved file back with only its depth bytes
+replaced (confidence and AB byte for byte).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from ._common import (
+    FormatError,
+    FrameSet,
     amplitude_from_stored,
     amplitude_to_stored,
     as_frames,
     check_not_empty,
     check_same_shape,
+    check_scale,
     depth_from_stored,
     depth_to_stored,
+    existing_file,
     output_path,
 )
 from .raw import RAW_DTYPE, read_raw, read_raw_array
@@ -37,9 +55,15 @@ __all__ = [
     "ADI_SHAPE",
     "KINECT_V2_P0_SHAPE",
     "P0_UNITS_PER_TURN",
+    "VendorName",
+    "adi_interleaved_frame_sets",
+    "adi_interleaved_write_like",
+    "adi_pair_frame_sets",
     "read_adi_depth_ir",
     "read_adi_interleaved",
     "read_kinect_v2_p0",
+    "vendor_name",
+    "vendor_partner",
     "write_adi_interleaved",
     "write_kinect_v2_p0",
 ]
@@ -140,3 +164,100 @@ def write_kinect_v2_p0(path, p0) -> Path:
     p = output_path(path)
     units.astype(RAW_DTYPE).tofile(p)
     return p
+
+
+_ADI_PAIR = re.compile(
+    r"^(?P<name>.+)_(?P<kind>depth|ir)_u16le_(?P<h>\d+)x(?P<w>\d+)\.(?:bin|raw)$", re.IGNORECASE
+)
+_ADI_INTERLEAVED = re.compile(
+    r"^(?P<name>.+)_interleaved_(?P<h>\d+)x(?P<w>\d+)\.(?:bin|raw)$", re.IGNORECASE
+)
+
+
+@dataclass(frozen=True)
+class VendorName:
+    """A vendor-named raw file: ``kind`` (``"depth"``, ``"ir"``, ``"interleaved"``), the
+    ``<name>`` part, the frame size from the name and the camera profile."""
+
+    kind: str
+    name: str
+    height: int
+    width: int
+    camera: str = "adtf3175"
+
+
+def vendor_name(file_name) -> VendorName | None:
+    """The vendor name pattern ``file_name`` matches (module docstring), else None."""
+    base = os.path.basename(os.fspath(file_name))
+    m = _ADI_PAIR.match(base)
+    if m:
+        return VendorName(m["kind"].lower(), m["name"], int(m["h"]), int(m["w"]))
+    m = _ADI_INTERLEAVED.match(base)
+    if m:
+        return VendorName("interleaved", m["name"], int(m["h"]), int(m["w"]))
+    return None
+
+
+def vendor_partner(file_name) -> str | None:
+    """The other file of a vendor pair (depth <-> IR), same case and suffix; None otherwise."""
+    base = os.path.basename(os.fspath(file_name))
+    m = _ADI_PAIR.match(base)
+    if m is None:
+        return None
+    other = {"depth": "ir", "ir": "depth"}[m["kind"].lower()]
+    if m["kind"].isupper():
+        other = other.upper()
+    return base[: m.start("kind")] + other + base[m.end("kind") :]
+
+
+def _vendor(path, kinds: tuple[str, ...]) -> tuple[Path, VendorName]:
+    p = Path(path)
+    v = vendor_name(p.name)
+    if v is None or v.kind not in kinds:
+        raise ValueError(f"{p} is not named like an ADI {' / '.join(kinds)} file")
+    return p, v
+
+
+def _vendor_scale(depth_scale) -> float:
+    return 1e-3 if depth_scale is None else check_scale(depth_scale)
+
+
+def _vendor_raw(path, v: VendorName, what: str, dtype=None) -> np.ndarray:
+    kw = {} if dtype is None else {"dtype": dtype}
+    try:
+        return read_raw_array(path, v.height, v.width, what=what, **kw)
+    except FormatError as exc:
+        raise FormatError(f"{exc} (the size {v.height} x {v.width} is from its name)") from exc
+
+
+def adi_pair_frame_sets(depth_path, amplitude_path=None, depth_scale=None) -> list[FrameSet]:
+    """The stored frames of an ADI vendor pair ``<name>_depth_u16le_<H>x<W>.bin`` (depth, mm)
+    + ``<name>_ir_u16le_<H>x<W>.bin`` (``amplitude_path``, IR counts), the size from the name."""
+    p, v = _vendor(depth_path, ("depth", "ir"))
+    if v.kind != "depth" or amplitude_path is None:
+        raise ValueError(
+            f"{p}: pass the depth file of an ADI pair as depth_path and its "
+            f"{vendor_partner(p.name) if v.kind == 'depth' else 'IR'} file as amplitude_path"
+        )
+    q = existing_file(amplitude_path, "amplitude")
+    d, a = _vendor_raw(p, v, f"ADTF3175 {v.kind}"), _vendor_raw(q, v, "ADTF3175 IR")
+    check_same_shape(d, a, f"{p} / {q}")
+    return [FrameSet("", d, a, _vendor_scale(depth_scale), tuple(d.shape), v.camera)]
+
+
+def adi_interleaved_frame_sets(path, amplitude_path=None, depth_scale=None) -> list[FrameSet]:
+    """The stored depth and AB (the amplitude) of an ADI ``<name>_interleaved_<H>x<W>.bin``."""
+    p, v = _vendor(path, ("interleaved",))
+    if amplitude_path is not None:
+        raise ValueError(f"{p} holds depth and AB interleaved; amplitude_path must be None")
+    arr = _vendor_raw(p, v, f"ADTF3175 {v.kind}", ADI_INTERLEAVED_DTYPE)
+    d, a = arr["depth"].astype(np.uint16), arr["ab"].astype(np.uint16)
+    return [FrameSet("", d, a, _vendor_scale(depth_scale), tuple(d.shape), v.camera)]
+
+
+def adi_interleaved_write_like(src: Path, dst: Path, depth: np.ndarray) -> None:
+    """Write the interleaved file ``src`` back as ``dst`` with its depth replaced by ``depth``
+    (stored mm, (T, H, W)); confidence and AB byte for byte."""
+    out = np.fromfile(src, dtype=ADI_INTERLEAVED_DTYPE).reshape(depth.shape)
+    out["depth"] = depth
+    out.tofile(dst)

@@ -27,7 +27,8 @@ from pathlib import Path
 import torch
 from torch.utils.data import Dataset
 
-from .pairs import PAIR_SUFFIXES, SINGLE_SUFFIXES, read_pair
+from .formats import FRAME_SET, PAIR_MEMBER, format_of_name
+from .pairs import SUFFIXES, read_pair
 from .raw import frame_size
 
 __all__ = ["FrameDataset", "find_frames"]
@@ -47,13 +48,14 @@ def find_frames(root, recursive: bool = False) -> list[tuple[str, str, str | Non
     singles: dict[str, dict[str, Path]] = {}
     stray, twice = [], []
     for p in files:
-        suffix = p.suffix.lower()
+        fmt = format_of_name(p.name, by_name=False)
+        holds = None if fmt is None else fmt.holds
         name = str(p.relative_to(root).with_suffix("").as_posix())
-        if suffix in PAIR_SUFFIXES:
+        if holds == FRAME_SET:
             if name in frames:
                 twice.append(name)
             frames[name] = (name, str(p), None)
-        elif suffix in SINGLE_SUFFIXES:
+        elif holds == PAIR_MEMBER:
             ending = next((e for e in _ENDINGS if name.endswith(e)), None)
             if ending is None:
                 stray.append(p.name)
@@ -86,9 +88,7 @@ def find_frames(root, recursive: bool = False) -> list[tuple[str, str, str | Non
             "<name>_depth.<ext> + <name>_amplitude.<ext> with one <ext>"
         )
     if not frames:
-        raise ValueError(
-            f"{root}: no frames found (suffixes {list(PAIR_SUFFIXES + SINGLE_SUFFIXES)})"
-        )
+        raise ValueError(f"{root}: no frames found (suffixes {list(SUFFIXES)})")
     return [frames[k] for k in sorted(frames)]
 
 
@@ -117,7 +117,7 @@ class FrameDataset(Dataset):
         recursive: bool = False,
     ) -> None:
         self.frames = find_frames(root, recursive)
-        raw = [d for _, d, _ in self.frames if Path(d).suffix.lower() in (".bin", ".raw")]
+        raw = [d for _, d, _ in self.frames if format_of_name(d, by_name=False).needs_size]
         if raw and (height is None or width is None):
             raise ValueError(f"raw files {raw[:3]} need height and width (pixels)")
         if height is not None or width is not None:

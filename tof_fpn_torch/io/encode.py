@@ -16,8 +16,7 @@ import zlib
 import numpy as np
 import torch
 
-from ._common import check_scale, depth_from_stored
-from .stored import FrameSet
+from ._common import FrameSet, check_scale, depth_from_stored
 
 __all__ = ["ROUNDING", "encode_depth"]
 

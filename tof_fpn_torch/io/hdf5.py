@@ -10,6 +10,11 @@ Readers return float32 (T, 1, H, W) tensors (metres with NaN invalid; camera uni
 the same. Only integer and floating datasets are read: strings, booleans, complex or compound
 dtypes raise :class:`FormatError`, as do missing datasets and groups in their place.
 
+The stored side (what ``tof-fpn clean`` reads and writes back): :func:`hdf5_frame_sets` returns
+every group holding a ``depth`` and an ``amplitude`` dataset (the root included) in its stored
+dtype, decoded like :func:`read_hdf5` decodes its two datasets; :func:`hdf5_write_like` copies a
+file and overwrites its depth datasets in place.
+
 Exactness: values round-trip exactly (uint16 mm -> metres -> uint16 mm); the writer stores no
 timestamps (``track_times=False``), so a file it wrote is re-written byte for byte.
 """
@@ -17,6 +22,7 @@ timestamps (``track_times=False``), so a file it wrote is re-written byte for by
 from __future__ import annotations
 
 import math
+import shutil
 from pathlib import Path
 
 import h5py
@@ -26,6 +32,7 @@ import torch
 from ._common import (
     METRES_PER_MM,
     FormatError,
+    FrameSet,
     amplitude_from_stored,
     amplitude_to_stored,
     as_frames,
@@ -38,9 +45,10 @@ from ._common import (
     existing_file,
     output_path,
     stored_frames,
+    stored_scale,
 )
 
-__all__ = ["read_hdf5", "write_hdf5"]
+__all__ = ["hdf5_frame_sets", "hdf5_write_like", "read_hdf5", "write_hdf5"]
 
 
 def _dataset(f: h5py.File, key: str, path: Path) -> h5py.Dataset:
@@ -55,6 +63,55 @@ def _dataset(f: h5py.File, key: str, path: Path) -> h5py.Dataset:
             "(uint16 mm / counts) or floating (float32 metres / units)"
         )
     return ds
+
+
+def _stored_pair(f: h5py.File, path: Path, depth_key: str, amplitude_key: str, depth_scale):
+    """``(depth, amplitude, stored depth shape, depth_scale)`` of two datasets, as stored: the
+    one decoder of the format. ``depth_scale`` None: the depth's ``scale_m`` attribute, if any."""
+    dset, aset = _dataset(f, depth_key, path), _dataset(f, amplitude_key, path)
+    if depth_scale is None and "scale_m" in dset.attrs:
+        where = f"{path} [{depth_key}].attrs['scale_m']"
+        try:
+            depth_scale = check_scale(float(np.asarray(dset.attrs["scale_m"])), where)
+        except (TypeError, ValueError) as exc:
+            raise FormatError(f"{where}: not a scale in metres per unit: {exc}") from exc
+    d, a = dset[()], aset[()]
+    shape = tuple(d.shape)
+    d = stored_frames(d, f"{path} [{depth_key}]")
+    a = stored_frames(a, f"{path} [{amplitude_key}]")
+    return d, a, shape, depth_scale
+
+
+def hdf5_frame_sets(path, depth_scale: float | None = None) -> list[FrameSet]:
+    """Every group of the file holding a ``depth`` and an ``amplitude`` dataset (the root
+    included) as a :class:`FrameSet` keyed by the group's path, in the stored dtype."""
+    found = []
+    with decoding(path, "an HDF5 file"), h5py.File(path, "r") as f:
+        groups = [("", f)]
+        f.visititems(
+            lambda name, obj: groups.append((name, obj)) if isinstance(obj, h5py.Group) else None
+        )
+        for key, g in groups:
+            if "depth" in g and "amplitude" in g:
+                prefix = f"{key}/" if key else ""
+                pair = _stored_pair(f, path, f"{prefix}depth", f"{prefix}amplitude", depth_scale)
+                found.append((key, *pair))
+    if not found:
+        raise FormatError(f"{path}: no group holds both a 'depth' and an 'amplitude' dataset")
+    return [FrameSet(k, d, a, stored_scale(d, s), shape) for k, d, a, shape, s in found]
+
+
+def hdf5_write_like(src: Path, dst: Path, arrays: dict, depth_scale: float | None = None) -> None:
+    """Copy ``src`` to ``dst`` and overwrite the depth dataset of each group key of ``arrays``
+    in place (every other dataset, group, attribute, chunking and filter kept); ``depth_scale``
+    (where the unit changes) is set as the depth's ``scale_m``."""
+    shutil.copyfile(src, dst)
+    with h5py.File(dst, "r+") as f:
+        for key, arr in arrays.items():
+            dset = f[f"{key}/depth" if key else "depth"]
+            dset[...] = arr
+            if depth_scale is not None:
+                dset.attrs["scale_m"] = float(depth_scale)
 
 
 def read_hdf5(
@@ -79,16 +136,7 @@ def read_hdf5(
     """
     p = existing_file(path, "HDF5")
     with decoding(p, "an HDF5 file"), h5py.File(p, "r") as f:
-        dset, aset = _dataset(f, depth_key, p), _dataset(f, amplitude_key, p)
-        if depth_scale is None and "scale_m" in dset.attrs:
-            where = f"{p} [{depth_key}].attrs['scale_m']"
-            try:
-                depth_scale = check_scale(float(np.asarray(dset.attrs["scale_m"])), where)
-            except (TypeError, ValueError) as exc:
-                raise FormatError(f"{where}: not a scale in metres per unit: {exc}") from exc
-        d, a = dset[()], aset[()]
-    d = stored_frames(d, f"{p} [{depth_key}]")
-    a = stored_frames(a, f"{p} [{amplitude_key}]")
+        d, a, _, depth_scale = _stored_pair(f, p, depth_key, amplitude_key, depth_scale)
     check_same_shape(d, a, str(p))
     depth, amplitude = depth_from_stored(d, depth_scale), amplitude_from_stored(a)
     check_not_empty(depth, amplitude, str(p), allow_empty)

@@ -1,4 +1,5 @@
-"""Image files: 16-bit PNG (``imageio``) and TIFF (``tifffile``), one file per depth or amplitude.
+"""Image files: 16-bit PNG (read with Pillow, written with ``imageio``) and TIFF (``tifffile``),
+one file per depth or amplitude.
 
 Units (``tof_fpn_torch.io._common``): integer images hold depth in mm (0 = invalid) and amplitude
 in counts; floating TIFFs hold depth in metres (NaN = invalid) and amplitude in camera units.
@@ -10,6 +11,12 @@ file's units); writers take the same.
 * TIFF: one page (H, W) or a stack (T, H, W), written as uint16 (mm / counts) or float32
   (metres / units); colour (samples per pixel > 1) and stacks of more than one leading axis are
   refused.
+
+The stored side (what ``tof-fpn clean`` reads and writes back): :func:`decode_png` and
+:func:`decode_tiff` are the one decoder of each format, used by the readers too;
+:func:`png_write_like` / :func:`tiff_write_like` write a file back as it came with other pixels.
+A PNG may state its depth unit in a ``depth_scale_m`` text chunk (:data:`PNG_SCALE_KEY`, written
+by ``png_write_like`` when the unit changes), which :func:`decode_png` returns.
 
 Exactness: the pixel values round-trip exactly (uint16 mm -> metres -> uint16 mm). The writers
 are deterministic, so a file they wrote is re-written byte for byte; a file from another encoder
@@ -24,6 +31,7 @@ import imageio.v3 as iio
 import numpy as np
 import tifffile
 import torch
+from PIL import Image, PngImagePlugin
 
 from ._common import (
     FormatError,
@@ -33,6 +41,7 @@ from ._common import (
     check_depth_bits,
     check_kind,
     check_not_empty,
+    check_scale,
     decoding,
     depth_from_stored,
     depth_to_stored,
@@ -41,7 +50,58 @@ from ._common import (
     stored_frames,
 )
 
-__all__ = ["read_png", "read_tiff", "write_png", "write_tiff"]
+__all__ = [
+    "PNG_SCALE_KEY",
+    "decode_png",
+    "decode_tiff",
+    "png_write_like",
+    "read_png",
+    "read_tiff",
+    "tiff_write_like",
+    "write_png",
+    "write_tiff",
+]
+
+#: the PNG text chunk that records the depth's metres per stored unit (when not 1 mm)
+PNG_SCALE_KEY = "depth_scale_m"
+
+
+def decode_png(path: Path) -> tuple[np.ndarray, float | None]:
+    """The stored image of a single-channel integer PNG, (H, W) in its own dtype (uint8 /
+    uint16), and the value of its ``depth_scale_m`` text chunk (None where absent).
+
+    :class:`FormatError` for a file that is not a PNG (whatever its name), a colour, palette or
+    alpha image, and a text chunk that is not a scale."""
+    with decoding(path, "a PNG image"), Image.open(path) as im:
+        if im.format != "PNG":
+            raise TypeError(f"a {im.format} image, not a PNG")
+        text = im.info.get(PNG_SCALE_KEY)
+        arr = np.asarray(im.convert("RGBA") if im.mode == "P" else im)  # a palette is colour
+    if arr.ndim != 2 or arr.dtype.kind not in "ui":
+        raise FormatError(
+            f"{path}: expected a single-channel integer (16-bit grey) PNG, got shape {arr.shape} "
+            f"dtype {arr.dtype}"
+        )
+    try:
+        scale = None if text is None else check_scale(float(text), PNG_SCALE_KEY)
+    except ValueError as exc:
+        raise FormatError(f"{path}: text chunk {PNG_SCALE_KEY}={text!r}: {exc}") from None
+    return arr, scale
+
+
+def decode_tiff(path: Path) -> np.ndarray:
+    """The stored frames of a grey TIFF, (H, W) or (T, H, W) in its own dtype; colour and more
+    than one leading axis raise :class:`FormatError`."""
+    with decoding(path, "a TIFF image"), tifffile.TiffFile(path) as tif:
+        series = tif.series[0]
+        axes = series.axes
+        arr = series.asarray()
+    if "S" in axes or not axes.endswith("YX") or len(axes) > 3:
+        raise FormatError(
+            f"{path}: expected grey frames with axes YX or one leading axis (e.g. IYX), got axes "
+            f"{axes!r} and shape {arr.shape}"
+        )
+    return arr
 
 
 def _to_tensor(arr: np.ndarray, kind: str, where: str, depth_scale, allow_empty) -> torch.Tensor:
@@ -76,13 +136,7 @@ def read_png(
     """
     check_kind(kind)
     p = existing_file(path, f"{kind} PNG")
-    with decoding(p, "a PNG image"):
-        arr = iio.imread(p, extension=".png")
-    if arr.ndim != 2 or arr.dtype.kind not in "ui":
-        raise FormatError(
-            f"{p}: expected a single-channel integer (16-bit grey) PNG, got shape {arr.shape} "
-            f"dtype {arr.dtype}"
-        )
+    arr, _ = decode_png(p)  # the depth_scale_m chunk is read by the stored side only
     if kind == "depth":
         check_depth_bits(arr, p, depth_scale)
     return _to_tensor(arr, kind, str(p), depth_scale, allow_empty)
@@ -121,15 +175,7 @@ def read_tiff(
     """
     check_kind(kind)
     p = existing_file(path, f"{kind} TIFF")
-    with decoding(p, "a TIFF image"), tifffile.TiffFile(p) as tif:
-        series = tif.series[0]
-        axes = series.axes
-        arr = series.asarray()
-    if "S" in axes or not axes.endswith("YX") or len(axes) > 3:
-        raise FormatError(
-            f"{p}: expected grey frames with axes YX or one leading axis (e.g. IYX), got axes "
-            f"{axes!r} and shape {arr.shape}"
-        )
+    arr = decode_tiff(p)
     return _to_tensor(arr, kind, str(p), depth_scale, allow_empty)
 
 
@@ -146,3 +192,30 @@ def write_tiff(
     p = output_path(path)
     tifffile.imwrite(p, arr[0] if arr.shape[0] == 1 else arr, photometric="minisblack")
     return p
+
+
+def png_write_like(src: Path, dst: Path, arr: np.ndarray, depth_scale: float | None = None) -> None:
+    """Write ``arr`` as a PNG with the mode and the text chunks of ``src``; ``depth_scale``
+    (metres per unit, where it differs from the input's) is recorded as ``depth_scale_m``."""
+    with Image.open(src) as im:
+        text = {k: v for k, v in im.info.items() if isinstance(k, str) and isinstance(v, str)}
+    if depth_scale is not None:
+        text[PNG_SCALE_KEY] = repr(float(depth_scale))
+    info = PngImagePlugin.PngInfo()
+    for k, v in text.items():
+        info.add_text(k, v)
+    Image.fromarray(arr).save(dst, format="PNG", pnginfo=info if text else None)
+
+
+def tiff_write_like(src: Path, dst: Path, arr: np.ndarray) -> None:
+    """Write ``arr`` as a TIFF with the compression, description and resolution of ``src``."""
+    with tifffile.TiffFile(src) as tif:
+        page = tif.pages[0]
+        kw = {"compression": page.compression if page.compression != 1 else None}
+        desc = page.description
+        shaped = desc.startswith("{") and '"shape"' in desc
+        if desc and not shaped:
+            kw.update(description=desc, metadata=None)
+        if "XResolution" in page.tags and "YResolution" in page.tags:
+            kw["resolution"] = (page.tags["XResolution"].value, page.tags["YResolution"].value)
+    tifffile.imwrite(dst, arr, photometric="minisblack", **kw)

@@ -11,10 +11,16 @@ layout). ``.npz`` files are zip archives: the arrays come back exactly, and :fun
 deterministic (fixed zip timestamps), so a file it wrote is re-written byte for byte; an archive
 from ``np.savez`` (whose zip entries carry the time of writing) is re-written with other bytes.
 Pickled (object) arrays are refused (``allow_pickle=False``).
+
+The stored side (what ``tof-fpn clean`` reads and writes back): :func:`decode_npy` and
+:func:`npz_frame_sets` decode a file into its stored arrays (the readers above use the same
+decoding), :func:`npy_write_like` / :func:`npz_write_like` write a file back as it came with
+another depth.
 """
 
 from __future__ import annotations
 
+import json
 import zipfile
 from pathlib import Path
 
@@ -23,6 +29,7 @@ import torch
 
 from ._common import (
     FormatError,
+    FrameSet,
     amplitude_from_stored,
     amplitude_to_stored,
     as_frames,
@@ -35,9 +42,21 @@ from ._common import (
     existing_file,
     output_path,
     stored_frames,
+    stored_scale,
 )
 
-__all__ = ["load_npz", "read_npy", "read_npz", "save_npz", "write_npy", "write_npz"]
+__all__ = [
+    "decode_npy",
+    "load_npz",
+    "npy_write_like",
+    "npz_frame_sets",
+    "npz_write_like",
+    "read_npy",
+    "read_npz",
+    "save_npz",
+    "write_npy",
+    "write_npz",
+]
 
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)  # the earliest zip date: a fixed timestamp for every entry
 
@@ -72,6 +91,70 @@ def load_npz(path, what: str = "an .npz archive") -> dict[str, np.ndarray]:
             return {k: f[k] for k in f.files}
 
 
+def decode_npy(path: Path) -> np.ndarray:
+    """The one array of an ``.npy`` file as stored (no pickles); :class:`FormatError` if it
+    cannot be decoded."""
+    with decoding(path, "an .npy array"):
+        arr = np.load(path, allow_pickle=False)
+        if not isinstance(arr, np.ndarray):
+            raise TypeError("an .npz archive, not an .npy array")
+    return arr
+
+
+def _npz_pair(path, depth_key: str, amplitude_key: str):
+    """``(depth, amplitude, arrays)``: the two stored (T, H, W) arrays of a depth / amplitude
+    archive and all its arrays."""
+    arrays = load_npz(path, "a depth / amplitude .npz")
+    missing = [k for k in (depth_key, amplitude_key) if k not in arrays]
+    if missing:
+        raise FormatError(
+            f"{path}: no array(s) {missing} in the archive; it holds {sorted(arrays)}"
+        )
+    d = stored_frames(arrays[depth_key], f"{path} [{depth_key}]")
+    a = stored_frames(arrays[amplitude_key], f"{path} [{amplitude_key}]")
+    return d, a, arrays
+
+
+def _recording_camera(arrays: dict) -> str | None:
+    """``meta["camera"]`` of a recording ``.npz`` (:mod:`.recording`), else None."""
+    try:
+        meta = json.loads(str(arrays["meta"].item())) if "content" in arrays else None
+    except (KeyError, ValueError):
+        return None
+    camera = meta.get("camera") if isinstance(meta, dict) else None
+    return camera if isinstance(camera, str) else None
+
+
+def npz_frame_sets(path, depth_scale: float | None = None) -> list[FrameSet]:
+    """The stored ``depth`` / ``amplitude`` of an archive as one :class:`FrameSet` (``camera``:
+    a recording's ``meta["camera"]``)."""
+    d, a, arrays = _npz_pair(path, "depth", "amplitude")
+    shape = tuple(arrays["depth"].shape)
+    return [FrameSet("", d, a, stored_scale(d, depth_scale), shape, _recording_camera(arrays))]
+
+
+def npz_write_like(src: Path, dst: Path, arr: np.ndarray) -> None:
+    """Copy every entry of the archive ``src`` (name, date, compression, zip64 or not) to
+    ``dst``, the content of ``depth.npy`` replaced by ``arr``."""
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", allowZip64=True) as zout:
+        for old in zin.infolist():
+            info = zipfile.ZipInfo(old.filename, date_time=old.date_time)
+            info.compress_type = old.compress_type
+            info.external_attr = old.external_attr
+            zip64 = old.extract_version >= zipfile.ZIP64_VERSION  # written with zip64 headers
+            with zout.open(info, "w", force_zip64=zip64) as fh:
+                if old.filename == "depth.npy":
+                    np.lib.format.write_array(fh, arr, allow_pickle=False)
+                else:
+                    fh.write(zin.read(old))
+
+
+def npy_write_like(dst: Path, arr: np.ndarray) -> None:
+    """Write ``arr`` as an ``.npy`` in its dtype and shape."""
+    with open(dst, "wb") as fh:
+        np.lib.format.write_array(fh, arr, allow_pickle=False)
+
+
 def read_npy(
     path, kind: str = "depth", *, depth_scale: float | None = None, allow_empty: bool = False
 ) -> torch.Tensor:
@@ -89,11 +172,7 @@ def read_npy(
     """
     check_kind(kind)
     p = existing_file(path, f"{kind} .npy")
-    with decoding(p, "an .npy array"):
-        arr = np.load(p, allow_pickle=False)
-        if not isinstance(arr, np.ndarray):
-            raise TypeError("an .npz archive, not an .npy array")
-    arr = stored_frames(arr, str(p))
+    arr = stored_frames(decode_npy(p), str(p))
     if kind == "amplitude":
         return amplitude_from_stored(arr)
     depth = depth_from_stored(arr, depth_scale)
@@ -136,14 +215,7 @@ def read_npz(
         ``(depth, amplitude)``, float32 (T, 1, H, W): metres with NaN for invalid (integer arrays
         count ``depth_scale`` m, default 1 mm; floating ones metres), and camera units.
     """
-    arrays = load_npz(path, "a depth / amplitude .npz")
-    missing = [k for k in (depth_key, amplitude_key) if k not in arrays]
-    if missing:
-        raise FormatError(
-            f"{path}: no array(s) {missing} in the archive; it holds {sorted(arrays)}"
-        )
-    d = stored_frames(arrays[depth_key], f"{path} [{depth_key}]")
-    a = stored_frames(arrays[amplitude_key], f"{path} [{amplitude_key}]")
+    d, a, _ = _npz_pair(path, depth_key, amplitude_key)
     check_same_shape(d, a, str(path))
     depth, amplitude = depth_from_stored(d, depth_scale), amplitude_from_stored(a)
     check_not_empty(depth, amplitude, str(path), allow_empty)

@@ -12,7 +12,9 @@ suffix                    holds                                      module
 ``.bin``, ``.raw``        depth *or* amplitude (uint16 LE, H x W)    :mod:`.raw`
 ========================  =========================================  ====================
 
-Readers return ``(depth, amplitude)`` float32 (T, 1, H, W): depth in metres with NaN for invalid,
+The reader and the writer of each file are those of its format in the table of formats
+(:mod:`.formats`, by suffix: an ADI vendor name is a raw file here). Readers return
+``(depth, amplitude)`` float32 (T, 1, H, W): depth in metres with NaN for invalid,
 amplitude in camera units; writers take the same (uint16 mm / counts by default).
 """
 
@@ -23,42 +25,32 @@ from pathlib import Path
 import torch
 
 from ._common import check_not_empty, check_same_shape
-from .hdf5 import read_hdf5, write_hdf5
-from .images import read_png, read_tiff, write_png, write_tiff
-from .numpy_files import read_npy, read_npz, write_npy, write_npz
-from .raw import read_raw, write_raw
+from .formats import FRAME_SET, PAIR_MEMBER, FileFormat, format_for, suffixes
 
 __all__ = ["PAIR_SUFFIXES", "SINGLE_SUFFIXES", "SUFFIXES", "read_pair", "write_pair"]
 
 #: suffixes of files holding both depth and amplitude
-PAIR_SUFFIXES: tuple[str, ...] = (".npz", ".h5", ".hdf5")
+PAIR_SUFFIXES: tuple[str, ...] = suffixes(FRAME_SET)
 #: suffixes of files holding one of them
-SINGLE_SUFFIXES: tuple[str, ...] = (".npy", ".png", ".tif", ".tiff", ".bin", ".raw")
+SINGLE_SUFFIXES: tuple[str, ...] = suffixes(PAIR_MEMBER)
 SUFFIXES: tuple[str, ...] = PAIR_SUFFIXES + SINGLE_SUFFIXES
-_RAW = (".bin", ".raw")
 
 
-def _suffix(path) -> str:
-    s = Path(path).suffix.lower()
-    if s not in SUFFIXES:
+def _format(path) -> FileFormat:
+    """The frame-file format of ``path``, by its suffix."""
+    fmt = format_for(path, by_name=False)
+    if fmt is None or fmt.holds not in (FRAME_SET, PAIR_MEMBER):
+        s = Path(path).suffix.lower()
         raise ValueError(f"unsupported file suffix {s!r} of {path}; supported: {list(SUFFIXES)}")
-    return s
+    return fmt
 
 
 def _read_single(path, kind, height, width, depth_scale) -> torch.Tensor:
-    s = _suffix(path)
-    if s in PAIR_SUFFIXES:
+    fmt = _format(path)
+    if fmt.holds == FRAME_SET:
         raise ValueError(f"{path} holds depth and amplitude together; pass it as depth_path alone")
     opts = dict(depth_scale=depth_scale, allow_empty=True) if kind == "depth" else {}
-    if s in _RAW:
-        if height is None or width is None:
-            raise ValueError(
-                f"raw file {path}: its frame size is not in the file; give height and width "
-                "(pixels; tof-fpn: --height / --width)"
-            )
-        return read_raw(path, height, width, kind, **opts)
-    reader = {".npy": read_npy, ".png": read_png, ".tif": read_tiff, ".tiff": read_tiff}[s]
-    return reader(path, kind, **opts)
+    return fmt.read(path, kind, height=height, width=width, **opts)
 
 
 def read_pair(
@@ -83,15 +75,14 @@ def read_pair(
     Returns:
         ``(depth, amplitude)``, float32 (T, 1, H, W): metres with NaN for invalid, camera units.
     """
-    s = _suffix(depth_path)
-    if s in PAIR_SUFFIXES:
+    fmt = _format(depth_path)
+    if fmt.holds == FRAME_SET:
         if amplitude_path is not None:
             raise ValueError(
                 f"{depth_path} holds depth and amplitude; amplitude_path must be None, got "
                 f"{amplitude_path!r}"
             )
-        reader = read_npz if s == ".npz" else read_hdf5
-        return reader(depth_path, depth_scale=depth_scale, allow_empty=allow_empty)
+        return fmt.read(depth_path, depth_scale=depth_scale, allow_empty=allow_empty)
     if amplitude_path is None:
         raise ValueError(f"{depth_path} holds depth only; pass amplitude_path too")
     depth = _read_single(depth_path, "depth", height, width, depth_scale)
@@ -118,14 +109,13 @@ def write_pair(
     rounded counts) or ``"float32"`` (metres with NaN invalid; as given); PNG and raw files are
     uint16 only. Returns the path(s) written."""
     check_same_shape(depth, amplitude, "write_pair")
-    s = _suffix(depth_path)
+    fmt = _format(depth_path)
     a_dtype = amplitude_dtype or dtype
-    if s in PAIR_SUFFIXES:
+    if fmt.holds == FRAME_SET:
         if amplitude_path is not None:
             raise ValueError(f"{depth_path} holds both; amplitude_path must be None")
-        writer = write_npz if s == ".npz" else write_hdf5
         kw = dict(dtype=dtype, amplitude_dtype=a_dtype, depth_scale=depth_scale)
-        return (writer(depth_path, depth, amplitude, **kw),)
+        return (fmt.write(depth_path, depth, amplitude, **kw),)
     if amplitude_path is None:
         raise ValueError(f"{depth_path} holds depth only; pass amplitude_path too")
     out = []
@@ -133,16 +123,9 @@ def write_pair(
         (depth_path, depth, "depth", dtype),
         (amplitude_path, amplitude, "amplitude", a_dtype),
     ):
-        t = _suffix(path)
-        if t in PAIR_SUFFIXES:
+        member = _format(path)
+        if member.holds == FRAME_SET:
             raise ValueError(f"{path}: an .npz / .h5 holds both; pass it as depth_path alone")
         scale = {"depth_scale": depth_scale} if kind == "depth" else {}
-        if t in (".png", *_RAW):
-            if dt != "uint16":
-                raise ValueError(f"{path}: {t} files are uint16 only, got dtype {dt!r}")
-            write = write_png if t == ".png" else write_raw
-            out.append(write(path, x, kind, **scale))
-        else:
-            write = write_npy if t == ".npy" else write_tiff
-            out.append(write(path, x, kind, dtype=dt, **scale))
+        out.append(member.write(path, x, kind, dtype=dt, **scale))
     return tuple(out)

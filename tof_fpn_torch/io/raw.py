@@ -27,7 +27,15 @@ from ._common import (
     output_path,
 )
 
-__all__ = ["RAW_DTYPE", "frame_size", "read_raw", "read_raw_array", "write_raw"]
+__all__ = [
+    "RAW_DTYPE",
+    "frame_size",
+    "raw_write_like",
+    "read_raw",
+    "read_raw_array",
+    "require_frame_size",
+    "write_raw",
+]
 
 #: the stored sample: little-endian uint16
 RAW_DTYPE = np.dtype("<u2")
@@ -39,6 +47,16 @@ def frame_size(height, width) -> tuple[int, int]:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name} must be an int >= 1 (pixels), got {v!r}")
     return int(height), int(width)
+
+
+def require_frame_size(path, height, width) -> None:
+    """``ValueError`` unless a frame size is given for the raw file ``path`` (its size is not in
+    the file)."""
+    if height is None or width is None:
+        raise ValueError(
+            f"raw file {path}: its frame size is not in the file; give height and width "
+            "(pixels; tof-fpn: --height / --width)"
+        )
 
 
 def read_raw_array(
@@ -115,3 +133,8 @@ def write_raw(path, x, kind: str = "depth", *, depth_scale: float | None = None)
     p = output_path(path)
     arr.astype(RAW_DTYPE).tofile(p)
     return p
+
+
+def raw_write_like(dst: Path, arr: np.ndarray) -> None:
+    """Write stored values back as raw little-endian uint16 frames."""
+    arr.astype(RAW_DTYPE).tofile(dst)

@@ -41,6 +41,7 @@ __all__ = [
     "read_recording",
     "recording_from_simulation",
     "write_recording",
+    "write_recording_like",
 ]
 
 #: the version this code writes (and the newest it reads)
@@ -286,3 +287,19 @@ def recording_from_simulation(
         raw=result.samples if include_raw else None,
         timestamps_s=timestamps_s,
     )
+
+
+def write_recording_like(src, dst, arrays: dict[str, np.ndarray], sets: dict, depth_scale=None):
+    """Write a camera container's cleaned depth as the package's recording ``.npz`` at ``dst``
+    (there is no faithful writer for the containers): ``arrays[""]`` the depth, float32 (T, H, W)
+    metres, and from ``sets[""]`` (the container's :class:`~._common.FrameSet` as read) the
+    amplitude, the reader's meta and timestamps. ``src`` and ``depth_scale`` are not used (the
+    signature of the table's rewriters, :mod:`.formats`)."""
+    fs = sets[""]
+    rec = Recording(
+        torch.from_numpy(arrays[""]),
+        torch.from_numpy(fs.amplitude),
+        fs.meta,
+        timestamps_s=fs.timestamps_s,
+    )
+    write_recording(dst, rec, allow_empty=True)

@@ -55,10 +55,13 @@ from .ros_messages import (
 
 __all__ = [
     "IMAGE_TYPE",
+    "ROS2_METADATA",
     "ROS_BAG_SUFFIXES",
     "choose_topic",
+    "is_ros2_bag_dir",
     "read_realsense_bag",
     "read_ros_bag",
+    "ros2_bag_files",
     "topic_kind",
 ]
 
@@ -66,6 +69,8 @@ __all__ = [
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 #: single-file bags: ROS 1 ``.bag``, ROS 2 storage files
 ROS_BAG_SUFFIXES: tuple[str, ...] = (".bag", ".mcap", ".db3")
+#: the file that makes a folder a ROS 2 bag
+ROS2_METADATA = "metadata.yaml"
 _REALSENSE_DEPTH = re.compile(r"^/device_(\d+)/sensor_(\d+)/Depth_\d+/image/data$")
 _WORDS = {
     "depth": {"depth"},
@@ -73,6 +78,22 @@ _WORDS = {
 }
 _REPROJECTED = {"aligned", "registered", "rgb", "color", "colour"}
 _MM = 1e-3
+
+
+def is_ros2_bag_dir(path) -> bool:
+    """A folder holding a rosbag2 ``metadata.yaml`` (its first 64 KiB name
+    ``rosbag2_bagfile_information``)."""
+    meta = Path(path) / ROS2_METADATA
+    try:
+        with open(meta, "rb") as fh:
+            return b"rosbag2_bagfile_information" in fh.read(1 << 16)
+    except OSError:
+        return False
+
+
+def ros2_bag_files(path) -> tuple[str, ...]:
+    """The files of a ROS 2 bag folder (``metadata.yaml`` and the storage files), sorted."""
+    return tuple(sorted(str(p) for p in Path(path).iterdir() if p.is_file()))
 
 
 def _import_rosbags():
