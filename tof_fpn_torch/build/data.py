@@ -5,7 +5,12 @@ destriper)."""
 
 from __future__ import annotations
 
+import inspect
+from collections.abc import Sequence
+from typing import Literal
+
 import torch
+from torch import nn
 
 from .. import constants as K
 from ..analysis.stripe_energy import column_stripe_energy, quiet_mask
@@ -16,12 +21,34 @@ from ..denoise import estimate_noise_k, estimate_sigma
 from ..design import max_rho
 from ..runtime import AmplitudeFusion, Destripe, FPNFilter, FPNSuppression, destripe, valid_mask
 from ..runtime.gate import line_gate
-from .design import filter_from_design, suppression_from_design
+from ._checks import (
+    check_dim,
+    check_filter_options,
+    check_flag,
+    check_fusion_options,
+    check_keys,
+    check_order,
+    check_real,
+    check_rho,
+)
+from .design import (
+    DEFAULT_ALLOW_SHIFT,
+    DEFAULT_BORDER,
+    DEFAULT_COMPENSATE_DELAY,
+    DEFAULT_GATE,
+    DEFAULT_TRAINABLE,
+    DEFAULT_UNIT_DC,
+    MAX_RIPPLE_DB,
+    filter_from_design,
+    suppression_from_design,
+)
 
 __all__ = [
+    "AUTO",
     "AUTO_DESTRIPE_MAX_ENERGY",
     "AUTO_DESTRIPE_MIN_Z",
     "AUTO_DESTRIPE_WIDTH",
+    "ESTIMATE_OPTIONS",
     "NOTCH_MERGE",
     "RHO_SHARE",
     "STRIPE_SCALE_RANGE",
@@ -73,9 +100,11 @@ def fusion_from_data(
         filter: the notch filter of the stage (default: :func:`filter_from_design`'s).
 
     Raises:
-        ValueError: fewer valid pixels than two amplitude bins need (use :func:`fusion_from_noise`
-            or a camera profile's thresholds).
+        ValueError: ``filter`` is not an :class:`FPNFilter`, or fewer valid pixels than two
+            amplitude bins need (use :func:`fusion_from_noise` or a camera profile's thresholds).
     """
+    if filter is not None and not isinstance(filter, FPNFilter):
+        raise ValueError(f"filter must be an FPNFilter or None, got {type(filter).__name__}")
     filt = filter_from_design() if filter is None else filter
     bins = stripe_power_by_amplitude(depth, amplitude, filt)
     if bins is None:
@@ -108,8 +137,10 @@ def fusion_from_noise(
         floor: the fusion's weight of the filtered depth for strong signals.
 
     Raises:
-        ValueError: no valid pixel, or no noise measurable (``k = 0``).
+        ValueError: ``floor`` outside ``[0, 1]``, no valid pixel, or no noise measurable
+            (``k = 0``).
     """
+    check_real("floor", floor, minimum=0.0, maximum=1.0)
     valid = valid_mask(depth, amplitude)
     if not bool(valid.any()):
         raise ValueError("fusion_from_noise: no valid pixel (depth > 0 finite, amplitude >= 0)")
@@ -145,6 +176,17 @@ def _stripe_scale(module: FPNSuppression, depth: torch.Tensor, amplitude: torch.
     return min(max(measured / read_total, lo), hi)
 
 
+#: ``destripe`` of :func:`suppression_from_data` that measures the broadband offsets on the frames
+AUTO = "auto"
+#: The options of :func:`~tof_fpn_torch.analysis.estimate_stripes` that ``estimate_kwargs`` of
+#: :func:`suppression_from_data` may set (the frames and ``false_alarm`` are its own parameters)
+ESTIMATE_OPTIONS: tuple[str, ...] = tuple(
+    name
+    for name, p in inspect.signature(estimate_stripes).parameters.items()
+    if p.kind is p.KEYWORD_ONLY and name != "false_alarm"
+)
+
+
 def suppression_from_data(
     frames: torch.Tensor,
     amplitudes: torch.Tensor | None = None,
@@ -154,28 +196,89 @@ def suppression_from_data(
     false_alarm: float = K.DETECTION_FALSE_ALARM,
     estimate_kwargs: dict | None = None,
     camera_hint: str | None = None,
-    **kwargs,
+    dim: int | tuple[int, ...] | None = None,
+    adaptive: bool | None = None,
+    camera: str | None = None,
+    low: float | None = None,
+    high: float | None = None,
+    floor: float = K.FUSION_FLOOR,
+    gate: bool = DEFAULT_GATE,
+    destripe: nn.Module | Literal["auto"] | None = AUTO,
+    border: str = DEFAULT_BORDER,
+    trainable: bool = DEFAULT_TRAINABLE,
+    allow_shift: bool = DEFAULT_ALLOW_SHIFT,
+    band_weights: Sequence[float] | None = None,
+    compensate_delay: bool = DEFAULT_COMPENSATE_DELAY,
+    unit_dc: bool = DEFAULT_UNIT_DC,
+    max_ripple_db: float | None = MAX_RIPPLE_DB,
 ) -> FPNSuppression:
     """A stage with the pieces the data call for (never one the data do not).
 
     Broadband column / row offsets: a :class:`~tof_fpn_torch.runtime.Destripe` for the orientations
-    :func:`broadband_from_data` finds (pass ``destripe=`` to choose yourself, None for none). The
-    periodic components :func:`~tof_fpn_torch.analysis.estimate_stripes` reports (false-alarm
-    probability ``<= false_alarm``, amplitude over its noise floor) become the notches, their
-    orientations ``dim`` (both orientations share one notch set; rho defaults to
-    ``min(DEFAULT_RHO, RHO_SHARE max_rho)``, :data:`RHO_SHARE` 0.9). With amplitudes the fusion is fitted to the stripes'
-    strength against the amplitude (:func:`fusion_from_data`; pass ``low`` / ``high`` or
-    ``camera`` to choose yourself), and the gate's stripe power is calibrated on the same frames
+    :func:`broadband_from_data` finds in what the notch stage leaves. The periodic components
+    :func:`~tof_fpn_torch.analysis.estimate_stripes` reports (false-alarm probability ``<=
+    false_alarm``, amplitude over its noise floor) become the notches (frequencies closer than
+    :data:`NOTCH_MERGE` one notch), their orientations ``dim`` (both orientations share one notch
+    set). With amplitudes the fusion is fitted to the stripes' strength against the amplitude
+    (:func:`fusion_from_data`) and the gate's stripe power is calibrated on the same frames
     (``stripe_scale`` of :class:`~tof_fpn_torch.runtime.FPNSuppression`). When nothing is found
-    the stage has no notch and returns its input unchanged. The estimate is kept in ``module.estimate``; ``kwargs`` go to
-    :func:`suppression_from_design`.
+    the stage has no notch and returns its input unchanged. The estimate is kept in
+    ``module.estimate``; the stage is built by :func:`suppression_from_design`.
+
+    Args:
+        frames: (B, 1, H, W) calibration depth frames of one camera (any unit); they share one
+            fixed pattern.
+        amplitudes: (B, 1, H, W) their amplitudes, or None (no fusion measured).
+        order: the notch filter's order (default Table I's 20).
+        rho: the transition half-width (fraction of ``pi``); default ``min(DEFAULT_RHO, RHO_SHARE
+            max_rho)`` of the notches found (:data:`RHO_SHARE` 0.9 of the largest they allow).
+        false_alarm: largest false-alarm probability of a reported stripe (default 0.01).
+        estimate_kwargs: further options of :func:`~tof_fpn_torch.analysis.estimate_stripes`
+            (keys from :data:`ESTIMATE_OPTIONS`), or None.
+        camera_hint: the camera profile whose thresholds the fusion takes where the frames are
+            too small to measure the stripes on (else the noise rule, :func:`fusion_from_noise`).
+        dim: the notch filter's orientation; default (None) the orientations of the stripes found.
+        adaptive: blend by amplitude (eq. 11); default (None) when ``amplitudes`` are given.
+        camera: the camera profile whose fusion thresholds to use instead of measuring them.
+        low, high: the fusion's thresholds instead of measuring them (a ``high`` without ``low``
+            or ``camera`` replaces the measured ``high`` only).
+        floor: the fusion's weight of the filtered depth for strong signals where it is not
+            fitted (given thresholds, a camera profile, the noise rule; default 0.2); a fitted
+            fusion has its own.
+        gate: the per-frame stripe gate (default True).
+        destripe: ``"auto"`` (default): a :class:`~tof_fpn_torch.runtime.Destripe` where
+            :func:`broadband_from_data` finds broadband offsets; None for none; or the module to
+            run first.
+        border, trainable, allow_shift, band_weights, compensate_delay, unit_dc, max_ripple_db:
+            as in :func:`filter_from_design`.
+
+    Raises:
+        ValueError: an option is invalid (the message names it, its value and what is allowed),
+            or the frames or the design are (see :func:`~tof_fpn_torch.analysis.estimate_stripes`
+            and :func:`suppression_from_design`).
     """
+    order = check_order(order)
+    rho = check_rho(rho, optional=True)
+    estimate_options = check_keys("estimate_kwargs", estimate_kwargs, ESTIMATE_OPTIONS)
+    if camera_hint is not None and not isinstance(camera_hint, str):
+        raise ValueError(
+            f"camera_hint must be a camera profile's name or None, got {camera_hint!r}"
+        )
+    check_dim(dim, optional=True)
+    check_filter_options(border, trainable, allow_shift, compensate_delay, unit_dc, max_ripple_db)
+    if adaptive is not None:
+        check_flag("adaptive", adaptive)
+    check_fusion_options(camera, low, high, floor)
+    check_flag("gate", gate)
+    auto_destripe = isinstance(destripe, str) and destripe == AUTO
+    if not (auto_destripe or destripe is None or isinstance(destripe, nn.Module)):
+        raise ValueError(f"destripe must be {AUTO!r}, None or an nn.Module, got {destripe!r}")
+
     est: StripeEstimate = estimate_stripes(
-        frames, amplitudes, false_alarm=false_alarm, **(estimate_kwargs or {})
+        frames, amplitudes, false_alarm=false_alarm, **estimate_options
     )
-    auto_destripe = "destripe" not in kwargs
     if not est.components:
-        found = broadband_from_data(frames, amplitudes) if auto_destripe else kwargs["destripe"]
+        found = broadband_from_data(frames, amplitudes) if auto_destripe else destripe
         module = FPNSuppression(None, None, destripe=found)
         module.estimate = est
         return module
@@ -184,19 +287,51 @@ def suppression_from_data(
         if merged and f - merged[-1] < NOTCH_MERGE:
             continue
         merged.append(f)
-    dims = sorted({c.dim for c in est.components})
+    notches = tuple(merged)
+    if dim is None:
+        dims = sorted({c.dim for c in est.components})
+        dim = tuple(dims) if len(dims) > 1 else dims[0]
     if rho is None:
-        rho = min(K.DEFAULT_RHO, RHO_SHARE * max_rho(merged))
-    kwargs.setdefault("dim", tuple(dims) if len(dims) > 1 else dims[0])
-    if amplitudes is None:
-        kwargs.setdefault("adaptive", False)
+        rho = min(K.DEFAULT_RHO, RHO_SHARE * max_rho(notches))
+    if adaptive is None:
+        adaptive = amplitudes is not None
     measured = None
-    if amplitudes is not None and kwargs.get("adaptive", True):
-        if "low" not in kwargs and "camera" not in kwargs:
-            measured = _measured_fusion(frames, amplitudes, order, rho, merged, kwargs, camera_hint)
-            kwargs.update(low=measured.low, high=measured.high, floor=measured.floor)
-    kwargs.setdefault("destripe", None)
-    module = suppression_from_design(order, rho, notches=tuple(merged), **kwargs)
+    if amplitudes is not None and adaptive and low is None and camera is None:
+        filt = filter_from_design(
+            order,
+            rho,
+            notches=notches,
+            dim=dim,
+            border=border,
+            allow_shift=allow_shift,
+            band_weights=band_weights,
+            compensate_delay=compensate_delay,
+            unit_dc=unit_dc,
+            max_ripple_db=max_ripple_db,
+        )
+        measured = _measured_fusion(frames, amplitudes, filt, floor=floor, camera_hint=camera_hint)
+        low, floor = measured.low, measured.floor
+        high = measured.high if high is None else high
+    module = suppression_from_design(
+        order,
+        rho,
+        notches=notches,
+        dim=dim,
+        adaptive=adaptive,
+        camera=camera,
+        low=low,
+        high=high,
+        floor=floor,
+        gate=gate,
+        destripe=None if auto_destripe else destripe,
+        border=border,
+        trainable=trainable,
+        allow_shift=allow_shift,
+        band_weights=band_weights,
+        compensate_delay=compensate_delay,
+        unit_dc=unit_dc,
+        max_ripple_db=max_ripple_db,
+    )
     if measured is not None:
         module.fusion.bins = measured.bins
         module.stripe_scale = _stripe_scale(module, frames, amplitudes)
@@ -209,19 +344,19 @@ def suppression_from_data(
 
 
 def _measured_fusion(
-    frames, amplitudes, order, rho, notches, kwargs, camera_hint
+    frames: torch.Tensor,
+    amplitudes: torch.Tensor,
+    filt: FPNFilter,
+    *,
+    floor: float,
+    camera_hint: str | None,
 ) -> AmplitudeFusion:
-    """:func:`fusion_from_data` with the stage's own notch filter; where the frames are too small
-    to measure the stripes on, the thresholds of the ``camera_hint`` profile, else the noise rule
-    (:func:`fusion_from_noise`)."""
-    design_keys = ("dim", "band_weights", "compensate_delay", "unit_dc", "max_ripple_db", "border")
-    filt = filter_from_design(
-        order, rho, notches=notches, **{k: kwargs[k] for k in design_keys if k in kwargs}
-    )
+    """:func:`fusion_from_data` with the stage's own notch filter ``filt``; where the frames are
+    too small to measure the stripes on, the thresholds of the ``camera_hint`` profile, else the
+    noise rule (:func:`fusion_from_noise`), with ``floor``."""
     try:
         return fusion_from_data(frames, amplitudes, filt)
     except ValueError:
-        floor = kwargs.get("floor", K.FUSION_FLOOR)
         prof = None if camera_hint is None else profile(camera_hint)
         if prof is not None and prof.fusion_low is not None and prof.fusion_high is not None:
             return AmplitudeFusion(prof.fusion_low, prof.fusion_high, floor)
@@ -241,15 +376,29 @@ def broadband_from_data(
     frames alone) must (1) move the valid pixels by an RMS of at least ``min_stripe`` times the
     frames' per-pixel noise (wavelet MAD, :func:`~tof_fpn_torch.denoise.estimate_sigma`; the floor
     of the periodic detection and the stripe gate) and (2) halve the column-stripe energy
-    (:data:`AUTO_DESTRIPE_MAX_ENERGY`)
-    (:func:`~tof_fpn_torch.analysis.column_stripe_energy`, the covariance of the top and bottom
-    halves' column profiles) measured away from scene structure (:func:`quiet_mask`): what it removes must be an offset of the whole column where the scene is quiet, not a
-    thin object or texture the same in both halves (the destriper alone cannot tell those apart);
-    and (3) the two halves' profiles there must correlate significantly: ``r sqrt(n) >=``
-    :data:`AUTO_DESTRIPE_MIN_Z` over ``n`` columns (no common pattern gives ``r ~ N(0, 1 / n)``;
-    the ADI wall's columns give 20, stripe-free frames where (1) and (2) passed by chance 0.3-0.5).
-    ``width`` is the destriper's high-pass width (:data:`AUTO_DESTRIPE_WIDTH`).
+    (:data:`AUTO_DESTRIPE_MAX_ENERGY`; :func:`~tof_fpn_torch.analysis.column_stripe_energy`, the
+    covariance of the top and bottom halves' column profiles) measured away from scene structure
+    (:func:`quiet_mask`): what it removes must be an offset of the whole column where the scene
+    is quiet, not a thin object or texture the same in both halves (the destriper alone cannot
+    tell those apart); and (3) the two halves' profiles there must correlate significantly:
+    ``r sqrt(n) >=`` :data:`AUTO_DESTRIPE_MIN_Z` over ``n`` columns (no common pattern gives
+    ``r ~ N(0, 1 / n)``; the ADI wall's columns give 20, stripe-free frames where (1) and (2)
+    passed by chance 0.3-0.5).
+
+    Args:
+        frames: (B, 1, H, W) depth frames of one camera (any unit).
+        amplitudes: (B, 1, H, W) their amplitudes (for the valid pixels), or None.
+        min_stripe: the smallest RMS change, in units of the frames' per-pixel noise, that counts
+            (default :data:`~tof_fpn_torch.constants.GATE_MIN_STRIPE`, 0.1).
+        width: the destriper's high-pass width, pixels (an int >= 3; default
+            :data:`AUTO_DESTRIPE_WIDTH`, 15).
+
+    Raises:
+        ValueError: ``min_stripe`` or ``width`` is invalid.
     """
+    check_real("min_stripe", min_stripe, minimum=0.0)
+    if isinstance(width, bool) or not isinstance(width, int) or width < 3:
+        raise ValueError(f"width must be an int >= 3 (pixels), got {width!r}")
     valid = valid_mask(frames, amplitudes)
     if not bool(valid.any()):
         return None
