@@ -15,14 +15,8 @@ Example:
     (20, 0.14, torch.Size([21]), True)
 """
 
-from .data import (
-    AUTO_DESTRIPE_MIN_Z,
-    AUTO_DESTRIPE_WIDTH,
-    broadband_from_data,
-    fusion_from_data,
-    fusion_from_noise,
-    suppression_from_data,
-)
+from .broadband import AUTO_DESTRIPE_MIN_Z, AUTO_DESTRIPE_WIDTH, broadband_from_data
+from .data import suppression_from_data
 from .design import (
     DEFAULT_ADAPTIVE,
     DEFAULT_ALLOW_SHIFT,
@@ -37,6 +31,7 @@ from .design import (
     suppression_from_design,
     trainable_suppression,
 )
+from .fusion import fusion_from_data, fusion_from_noise
 
 __all__ = [
     "AUTO_DESTRIPE_MIN_Z",

@@ -387,13 +387,9 @@ def _highest_verified_order(attempt, max_drop: int):
 def design_fpn_filter(order: int, rho: float, **kwargs) -> np.ndarray:
     """Exactly ``design_fpn(order, rho, **kwargs).taps``, kept for the public API.
 
-    It has no parameters or defaults of its own: ``kwargs`` are :func:`design_fpn`'s keyword
-    parameters (``notches``, ``band_weights``, ``unit_dc``, ``grid_density``, ``maxiter``),
-    documented, defaulted and checked there (an unknown one is a ``TypeError``). Use
-    :func:`design_fpn` for an explicit signature and the figures of merit (its
-    :class:`FPNDesign` holds the taps as ``.taps``). The run-time modules get theirs from
-    :func:`tof_fpn_torch.build.filter_from_design`, which calls :func:`design_fpn` (and, for odd
-    orders, compensates the half-sample delay).
+    No parameters or defaults of its own: ``kwargs`` are :func:`design_fpn`'s (``notches``,
+    ``band_weights``, ``unit_dc``, ``grid_density``, ``maxiter``), documented and checked there;
+    its :class:`FPNDesign` adds the figures of merit. Run-time modules: ``build.filter_from_design``.
 
     Example:
         >>> h = design_fpn_filter(20, 0.14)
