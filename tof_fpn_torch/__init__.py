@@ -94,7 +94,8 @@ _SUBPACKAGES = (
 __all__ = sorted([*_EXPORTS, *_MODULES, *_SUBPACKAGES, "__version__"])
 
 if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDEs only
-    # (``X as X``: an explicit re-export, PEP 484)
+    # (``X as X``: an explicit re-export, PEP 484). ``destripe`` and ``fpn_filter`` come from
+    # their own modules: type checkers take ``runtime.destripe`` for the submodule of that name.
     from . import analysis as analysis
     from . import build as build
     from . import cameras as cameras
@@ -140,9 +141,9 @@ if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDE
     from .runtime import Destripe as Destripe
     from .runtime import FPNFilter as FPNFilter
     from .runtime import FPNSuppression as FPNSuppression
-    from .runtime import destripe as destripe
-    from .runtime import fpn_filter as fpn_filter
     from .runtime import valid_mask as valid_mask
+    from .runtime.destripe import destripe as destripe
+    from .runtime.fpn_filter import fpn_filter as fpn_filter
     from .sim import Camera as Camera
     from .sim import Scene as Scene
     from .sim import Simulation as Simulation

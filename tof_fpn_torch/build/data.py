@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Sequence
-from typing import Literal
+from typing import Final, Literal
 
 import torch
 from torch import nn
@@ -55,7 +55,7 @@ NOTCH_MERGE = 0.02
 #: the notches (a margin below the largest transition width they allow)
 RHO_SHARE = 0.9
 #: ``destripe`` of :func:`suppression_from_data` that measures the broadband offsets on the frames
-AUTO = "auto"
+AUTO: Final = "auto"
 #: The options of :func:`~tof_fpn_torch.analysis.estimate_stripes` that ``estimate_kwargs`` of
 #: :func:`suppression_from_data` may set (the frames and ``false_alarm`` are its own parameters)
 ESTIMATE_OPTIONS: tuple[str, ...] = tuple(
@@ -131,12 +131,12 @@ def suppression_from_data(
     """
     order, rho = check_order(order), check_rho(rho, optional=True)
     estimate_options = check_keys("estimate_kwargs", estimate_kwargs, ESTIMATE_OPTIONS)
-    auto_destripe = _check_data_options(camera_hint, dim, adaptive, gate, destripe)
+    auto_destripe, given = _check_data_options(camera_hint, dim, adaptive, gate, destripe)
     check_filter_options(border, trainable, allow_shift, compensate_delay, unit_dc, max_ripple_db)
     check_fusion_options(camera, low, high, floor)
     est = estimate_stripes(frames, amplitudes, false_alarm=false_alarm, **estimate_options)
     if not est.components:
-        return _without_notch(frames, amplitudes, est, auto=auto_destripe, destripe=destripe)
+        return _without_notch(frames, amplitudes, est, auto=auto_destripe, destripe=given)
     notches, found_dim, rho = _notches(est, rho)
     adaptive = amplitudes is not None if adaptive is None else adaptive
     measure = amplitudes is not None and adaptive and low is None and camera is None
@@ -151,7 +151,7 @@ def suppression_from_data(
         high=high,
         floor=floor,
         gate=gate,
-        destripe=None if auto_destripe else destripe,
+        destripe=given,
         border=border,
         trainable=trainable,
         allow_shift=allow_shift,
@@ -160,7 +160,7 @@ def suppression_from_data(
         unit_dc=unit_dc,
         max_ripple_db=max_ripple_db,
     )
-    if measure:
+    if measure and amplitudes is not None:
         measure_fusion(module, frames, amplitudes, high=high, floor=floor, camera_hint=camera_hint)
     if auto_destripe:  # what the notch stage leaves: broadband offsets, if any
         with torch.no_grad():
@@ -172,9 +172,9 @@ def suppression_from_data(
 
 def _check_data_options(
     camera_hint: object, dim: object, adaptive: object, gate: object, destripe: object
-) -> bool:
+) -> tuple[bool, nn.Module | None]:
     """The checks of :func:`suppression_from_data`'s own options; whether ``destripe`` is
-    :data:`AUTO`."""
+    :data:`AUTO`, and the module given (or None)."""
     if camera_hint is not None and not isinstance(camera_hint, str):
         raise ValueError(
             f"camera_hint must be a camera profile's name or None, got {camera_hint!r}"
@@ -183,10 +183,11 @@ def _check_data_options(
     if adaptive is not None:
         check_flag("adaptive", adaptive)
     check_flag("gate", gate)
-    auto = isinstance(destripe, str) and destripe == AUTO
-    if not (auto or destripe is None or isinstance(destripe, nn.Module)):
+    if isinstance(destripe, nn.Module) or destripe is None:
+        return False, destripe
+    if not (isinstance(destripe, str) and destripe == AUTO):
         raise ValueError(f"destripe must be {AUTO!r}, None or an nn.Module, got {destripe!r}")
-    return auto
+    return True, None
 
 
 def _without_notch(
