@@ -20,12 +20,15 @@ Layers (docs/architecture.md), each a subpackage that may import only the ones b
 The paper's reproduction, the benchmarks and the training experiment live beside the package
 (``benchmarks/``, ``examples/`` in the repository), not in it.
 
-The names below are loaded on first use, so ``import tof_fpn_torch.runtime`` loads torch only.
+The names below are loaded on first use, so ``import tof_fpn_torch.runtime`` loads torch only;
+type checkers and IDEs see them through the ``TYPE_CHECKING`` imports, which list the same names
+(``tests/test_builders_signatures.py`` checks that the two agree).
 """
 
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
 
 __version__ = "0.2.0"
 
@@ -89,6 +92,63 @@ _SUBPACKAGES = (
 )
 
 __all__ = sorted([*_EXPORTS, *_MODULES, *_SUBPACKAGES, "__version__"])
+
+if TYPE_CHECKING:  # the same names, imported eagerly, for type checkers and IDEs only
+    # (``X as X``: an explicit re-export, PEP 484). ``destripe`` and ``fpn_filter`` come from
+    # their own modules: type checkers take ``runtime.destripe`` for the submodule of that name.
+    from . import analysis as analysis
+    from . import build as build
+    from . import cameras as cameras
+    from . import clean as clean
+    from . import cli as cli
+    from . import constants as constants
+    from . import demo as demo
+    from . import denoise as denoise
+    from . import design as design
+    from . import diagnosis as diagnosis
+    from . import export as export
+    from . import io as io
+    from . import learn as learn
+    from . import paper_data as paper_data
+    from . import runtime as runtime
+    from . import sim as sim
+    from .analysis import StripeComponent as StripeComponent
+    from .analysis import StripeEstimate as StripeEstimate
+    from .analysis import estimate_stripes as estimate_stripes
+    from .analysis import metrics as metrics
+    from .analysis import psnr as psnr
+    from .build import broadband_from_data as broadband_from_data
+    from .build import filter_from_design as filter_from_design
+    from .build import fusion_from_data as fusion_from_data
+    from .build import suppression_from_data as suppression_from_data
+    from .build import suppression_from_design as suppression_from_design
+    from .denoise import NonLocalMeans as NonLocalMeans
+    from .denoise import non_local_means as non_local_means
+    from .design import FPNDesign as FPNDesign
+    from .design import RemezConvergenceError as RemezConvergenceError
+    from .design import design_fpn as design_fpn
+    from .design import design_fpn_filter as design_fpn_filter
+    from .io import FrameDataset as FrameDataset
+    from .io import Recording as Recording
+    from .io import SceneData as SceneData
+    from .io import read_pair as read_pair
+    from .io import read_recording as read_recording
+    from .io import read_scene as read_scene
+    from .io import write_pair as write_pair
+    from .io import write_recording as write_recording
+    from .io import write_scene as write_scene
+    from .runtime import AmplitudeFusion as AmplitudeFusion
+    from .runtime import Destripe as Destripe
+    from .runtime import FPNFilter as FPNFilter
+    from .runtime import FPNSuppression as FPNSuppression
+    from .runtime import valid_mask as valid_mask
+    from .runtime.destripe import destripe as destripe
+    from .runtime.fpn_filter import fpn_filter as fpn_filter
+    from .sim import Camera as Camera
+    from .sim import Scene as Scene
+    from .sim import Simulation as Simulation
+    from .sim import planar_scene as planar_scene
+    from .sim import synthetic_scene as synthetic_scene
 
 
 def __getattr__(name: str):

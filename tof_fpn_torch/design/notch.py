@@ -385,12 +385,11 @@ def _highest_verified_order(attempt, max_drop: int):
 
 
 def design_fpn_filter(order: int, rho: float, **kwargs) -> np.ndarray:
-    """Alias of ``design_fpn(order, rho, **kwargs).taps``, kept for the public API.
+    """Exactly ``design_fpn(order, rho, **kwargs).taps``, kept for the public API.
 
-    :func:`design_fpn` is the one way from a specification to taps: its :class:`FPNDesign` holds
-    them (``.taps``) with the figures of merit. The run-time modules get theirs from
-    :func:`tof_fpn_torch.build.filter_from_design`, which calls :func:`design_fpn` (and, for odd
-    orders, compensates the half-sample delay).
+    No parameters or defaults of its own: ``kwargs`` are :func:`design_fpn`'s (``notches``,
+    ``band_weights``, ``unit_dc``, ``grid_density``, ``maxiter``), documented and checked there;
+    its :class:`FPNDesign` adds the figures of merit. Run-time modules: ``build.filter_from_design``.
 
     Example:
         >>> h = design_fpn_filter(20, 0.14)
