@@ -10,7 +10,9 @@ The graph is built with :mod:`ast` from every module of ``tof_fpn_torch``:
   does on the way is not counted (every module would otherwise sit in a circle with the
   ``__init__`` of its package that re-exports it);
 - ``importlib.import_module`` with a computed name (the package's lazy ``__getattr__``, the
-  command registry) is not an edge; with a literal name it is.
+  command registry) is not an edge; with a literal name it is;
+- an import under ``if TYPE_CHECKING:`` is not an edge: it never runs (the package's index
+  imports its lazy names there for type checkers).
 
 A cycle is a strongly connected component of more than one module, or a module importing itself;
 each is reported as chains ``a -> b -> c -> a`` (a shortest circle through every module of it)
@@ -75,13 +77,27 @@ def _literal_import_module(node: ast.Call) -> tuple[str, str | None] | None:
     return name.value, "__name__" if isinstance(pkg, ast.Name) else None
 
 
+def _type_checking_only(tree: ast.AST) -> set[int]:
+    """``id`` of every node under ``if TYPE_CHECKING:`` / ``if typing.TYPE_CHECKING:``."""
+    out: set[int] = set()
+    for node in ast.walk(tree):
+        test = node.test if isinstance(node, ast.If) else None
+        name = test.id if isinstance(test, ast.Name) else getattr(test, "attr", None)
+        if name == "TYPE_CHECKING":
+            out |= {id(n) for child in node.body for n in ast.walk(child)}
+    return out
+
+
 def import_edges(modules: dict[str, Path]) -> dict[str, dict[str, int]]:
     """Module -> {imported module of the package: line of the first such import}."""
     graph: dict[str, dict[str, int]] = {m: {} for m in modules}
     for mod, path in modules.items():
         is_pkg = path.name == "__init__.py"
         tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        never_run = _type_checking_only(tree)
         for node in ast.walk(tree):
+            if id(node) in never_run:
+                continue
             targets: list[str | None] = []
             if isinstance(node, ast.Import):
                 targets = [_known(a.name, modules) for a in node.names]
@@ -223,13 +239,17 @@ def test_the_graph_sees_the_cycles_of_a_fake_package(tmp_path):
     ``from . import module``, a self-import, a literal ``import_module``; and what is not a
     circle: a subpackage's ``__init__`` re-exporting its module (the module's implicit import
     of its parent is not an edge), ``from pkg import name`` of a name defined in ``__init__``,
-    a computed ``import_module``, imports from outside the package."""
+    a computed ``import_module``, an import under ``if TYPE_CHECKING:``, imports from outside
+    the package."""
     _write(
         tmp_path,
         {
             "fake/__init__.py": (
                 "import importlib\n"
+                "from typing import TYPE_CHECKING\n"
                 "VERSION = 1\n"
+                "if TYPE_CHECKING:  # never run: no edge (sub.d reads VERSION back)\n"
+                "    from . import sub as sub\n"
                 "def __getattr__(name):\n"
                 "    return importlib.import_module(f'.{name}', __name__)\n"
             ),

@@ -170,11 +170,9 @@ def _data_stage(ctx: Context, destripe: nn.Module | None) -> FPNSuppression:
         fusion = dict(low=c.low, high=c.high)
     else:
         fusion = dict(camera_hint=frames.camera)
-    if keep:
-        return suppression_from_data(
-            d, a, order=c.order, rho=c.rho, gate=c.gate, destripe=destripe, **fusion
-        )
-    return suppression_from_data(d, a, order=c.order, rho=c.rho, gate=c.gate, **fusion)
+    return suppression_from_data(
+        d, a, order=c.order, rho=c.rho, gate=c.gate, destripe=destripe if keep else "auto", **fusion
+    )
 
 
 def _build(ctx: Context) -> FPNSuppression | None:
