@@ -11,8 +11,8 @@ command's output that differs) and exits 1 if there is any, 0 if the two are ide
 ``benchmarks/behaviour_reference.json`` is the reference written by ``run`` on the code before
 the change. A change that is meant to keep behaviour must compare identical; every difference it
 does give must be listed, with its reason, where the change is described (an exported
-TorchScript archive, for instance, holds the module's code, so its bytes change when that code
-is reorganised while its outputs, also compared, must not). Re-record the reference only for a
+TorchScript archive, for instance, holds the module's scripted code and its module path, so it
+changes when that code is reorganised, while its outputs, also compared, must not). Re-record the reference only for a
 change that is meant to change behaviour, and say so.
 
 ``run OUTDIR`` writes, with fixed seeds and one thread everywhere:
@@ -39,11 +39,13 @@ change that is meant to change behaviour, and say so.
   times, durations, dates, run ids, host names, versions and file times dropped; absolute paths
   masked, floats to 12 significant digits; everything else kept) and their normalised content
   is stored; Markdown and text files are stored with times masked. ``.npz`` archives get a hash
-  per member too, so a difference names the array. Exported TorchScript / ONNX models are loaded (``torch.jit.load``,
-  ``onnxruntime``) and their output on a fixed seeded input is hashed as well. Each command's
-  standard output is stored line by line with times, rates, versions and paths masked (the
-  printed stage line and summary are behaviour too); ``meta`` (versions of the libraries,
-  commit, wall time) is shown by ``compare`` but never counts as a difference.
+  per member too, so a difference names the array. Exported TorchScript / ONNX models are
+  hashed without their debug information (source paths and line numbers) and loaded
+  (``torch.jit.load``, ``onnxruntime``) to hash their output on a fixed seeded input too. Each
+  command's standard output is stored line by line with times, rates, versions and paths
+  masked (the printed stage line and summary are behaviour too). Nothing stored depends on
+  where the checkout or ``OUTDIR`` is. ``meta`` (versions of the libraries, commit, wall time)
+  is shown by ``compare`` but never counts as a difference.
 """
 
 from __future__ import annotations
@@ -204,6 +206,18 @@ def describe(path: Path, replacements: dict[str, str] | None = None) -> dict:
             normalised_sha256=sha256("\n".join(lines).encode()),
             content=lines,
         )
+    elif suffix == ".pt":
+        members = torchscript_members(data, replacements)
+        entry.update(
+            kind="torchscript",
+            compare="normalised_sha256",
+            normalised_sha256=sha256(_canonical(members)),
+            members=members,
+        )
+    elif suffix == ".onnx":
+        entry.update(
+            kind="onnx", compare="normalised_sha256", **onnx_normalised(data, replacements)
+        )
     elif suffix == ".npz":
         with zipfile.ZipFile(io.BytesIO(data)) as zf:
             members = {i.filename: sha256(zf.read(i)) for i in zf.infolist()}
@@ -213,7 +227,62 @@ def describe(path: Path, replacements: dict[str, str] | None = None) -> dict:
     return entry
 
 
-# --- exported models: their outputs on a fixed input --------------------------------------------
+# --- exported models: the archive without its debug information, the outputs on a fixed input ---
+
+
+def _mask_bytes(data: bytes, replacements: dict[str, str] | None) -> bytes:
+    for literal, mark in sorted((replacements or {}).items(), key=lambda kv: -len(kv[0])):
+        if literal:
+            data = data.replace(literal.encode(), mark.encode())
+    return data
+
+
+def torchscript_members(data: bytes, replacements: dict[str, str] | None = None) -> dict:
+    """SHA-256 of each member of a TorchScript archive (the scripted code, the constants, the
+    tensors), the debug information left out: its ``*.debug_pkl`` hold the source file's
+    absolute path and line numbers, and ``.data/serialization_id`` is derived from all members.
+    The code is compared as scripted, so it changes when the module's code does."""
+    out = {}
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        for info in zf.infolist():
+            name = info.filename.split("/", 1)[-1]  # without the archive's own folder name
+            if name.endswith(".debug_pkl") or name == ".data/serialization_id":
+                continue
+            out[name] = sha256(_mask_bytes(zf.read(info), replacements))
+    return out
+
+
+def onnx_normalised(data: bytes, replacements: dict[str, str] | None = None) -> dict:
+    """The hash of an ONNX model without what the exporter records for debugging (each node's
+    ``doc_string`` and ``metadata_props``: stack traces with file paths and line numbers, FX
+    node text) and without the producer's version; the graph, its initialisers and the model's
+    own ``metadata_props`` (the stage's parameters) are kept. ``ops``: the node count per
+    operator type, to read a difference."""
+    import onnx
+
+    model = onnx.load_from_string(data)
+
+    def strip(graph) -> None:
+        for node in graph.node:
+            node.doc_string = ""
+            del node.metadata_props[:]
+            for attr in node.attribute:
+                if attr.type == onnx.AttributeProto.GRAPH:
+                    strip(attr.g)
+                for g in attr.graphs:
+                    strip(g)
+
+    strip(model.graph)
+    for fn in model.functions:
+        for node in fn.node:
+            node.doc_string = ""
+            del node.metadata_props[:]
+    model.producer_version = ""
+    ops: dict[str, int] = {}
+    for node in model.graph.node:
+        ops[node.op_type] = ops.get(node.op_type, 0) + 1
+    blob = _mask_bytes(model.SerializeToString(deterministic=True), replacements)
+    return {"normalised_sha256": sha256(blob), "ops": dict(sorted(ops.items()))}
 
 
 def model_input(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -584,7 +653,10 @@ def _file_diffs(section: str, a: dict, b: dict) -> list[str]:
         ea, eb = a[rel], b[rel]
         key = ea.get("compare", "sha256")
         if key != eb.get("compare", "sha256") or ea.get(key) != eb.get(key):
-            what = "normalised content" if key == "normalised_sha256" else "bytes"
+            what = {
+                "torchscript": "archive (debug information aside)",
+                "onnx": "model graph (debug information aside)",
+            }.get(ea.get("kind"), "normalised content" if key == "normalised_sha256" else "bytes")
             out.append(f"{section} {rel}: {what} hash differs")
             if "content" in ea and "content" in eb:
                 details = _content_diff(ea["content"], eb["content"])
@@ -595,6 +667,10 @@ def _file_diffs(section: str, a: dict, b: dict) -> list[str]:
             for m in sorted(set(ma) | set(mb)):
                 if ma.get(m) != mb.get(m):
                     out.append(f"    member {m} differs")
+            oa, ob = ea.get("ops", {}), eb.get("ops", {})
+            for op in sorted(set(oa) | set(ob)):
+                if oa.get(op) != ob.get(op):
+                    out.append(f"    {op} nodes: {oa.get(op, 0)} -> {ob.get(op, 0)}")
             if "model" in ea and ea.get("model") == eb.get("model"):
                 out.append("    (the model's outputs on the fixed input are identical)")
         if ea.get("model") != eb.get("model"):

@@ -4,7 +4,9 @@ hand-made records; the fixed set of runs itself is not run here."""
 from __future__ import annotations
 
 import copy
+import io
 import json
+import zipfile
 
 import behaviour_check as bc
 
@@ -143,3 +145,21 @@ def test_normaliser_rounds_floats_to_twelve_digits():
     assert a == b == {"stripe_scale": 0.430202039728}
     assert c != a
     assert bc.normalise({"x": float("nan"), "n": 3})[0] == {"x": "nan", "n": 3}
+
+
+def _archive(code: bytes, debug: bytes, serial: bytes) -> bytes:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        zf.writestr("m/code/__torch__/stage.py", code)
+        zf.writestr("m/code/__torch__/stage.py.debug_pkl", debug)
+        zf.writestr("m/.data/serialization_id", serial)
+    return buf.getvalue()
+
+
+def test_torchscript_archive_hash_leaves_out_debug_information_only():
+    base = bc.torchscript_members(_archive(b"def f(x): return x", b"/work/a/stage.py:10", b"1"))
+    moved = bc.torchscript_members(_archive(b"def f(x): return x", b"/work/b/stage.py:12", b"2"))
+    edited = bc.torchscript_members(_archive(b"def f(x): return -x", b"/work/a/stage.py:10", b"1"))
+    assert list(base) == ["code/__torch__/stage.py"]
+    assert moved == base
+    assert edited != base
