@@ -252,11 +252,41 @@ def torchscript_members(data: bytes, replacements: dict[str, str] | None = None)
     return out
 
 
+def _canonical_names(graph) -> None:
+    """Rename the nodes (``n0``, ``n1``, ... in graph order) and the values between them (``v0``,
+    ``v1``, ... in order of first use) of ``graph``, the graph's inputs and outputs kept: the
+    exporter numbers them from a counter that shifts when code traced before them changes."""
+    keep = {v.name for v in graph.input} | {v.name for v in graph.output} | {""}
+    names: dict[str, str] = {}
+
+    def new(name: str) -> str:
+        if name in keep:
+            return name
+        if name not in names:
+            names[name] = f"v{len(names)}"
+        return names[name]
+
+    for i, node in enumerate(graph.node):
+        node.name = f"n{i}"
+        node.input[:] = [new(x) for x in node.input]
+        node.output[:] = [new(x) for x in node.output]
+    for group in (graph.initializer, graph.value_info):
+        items = sorted(group, key=lambda v: new(v.name))
+        for item in items:
+            item.name = new(item.name)
+        copies = [type(item)() for item in items]
+        for c, item in zip(copies, items, strict=True):
+            c.CopyFrom(item)
+        del group[:]
+        group.extend(copies)
+
+
 def onnx_normalised(data: bytes, replacements: dict[str, str] | None = None) -> dict:
     """The hash of an ONNX model without what the exporter records for debugging (each node's
     ``doc_string`` and ``metadata_props``: stack traces with file paths and line numbers, FX
-    node text) and without the producer's version; the graph, its initialisers and the model's
-    own ``metadata_props`` (the stage's parameters) are kept. ``ops``: the node count per
+    node text) and without the producer's version, nodes and intermediate values renamed by
+    their place in the graph; the graph, its initialisers and the model's own
+    ``metadata_props`` (the stage's parameters) are kept. ``ops``: the node count per
     operator type, to read a difference."""
     import onnx
 
@@ -273,6 +303,7 @@ def onnx_normalised(data: bytes, replacements: dict[str, str] | None = None) -> 
                     strip(g)
 
     strip(model.graph)
+    _canonical_names(model.graph)
     for fn in model.functions:
         for node in fn.node:
             node.doc_string = ""

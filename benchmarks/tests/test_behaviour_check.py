@@ -163,3 +163,29 @@ def test_torchscript_archive_hash_leaves_out_debug_information_only():
     assert list(base) == ["code/__torch__/stage.py"]
     assert moved == base
     assert edited != base
+
+
+def _onnx_model(mid: str, op: str, trace: str) -> bytes:
+    from onnx import TensorProto, helper
+
+    n1 = helper.make_node("Add", ["x", "one"], [mid], name=f"node_add_{len(mid)}")
+    n1.metadata_props.add(key="pkg.torch.onnx.stack_trace", value=trace)
+    n2 = helper.make_node(op, [mid, mid], ["y"], name="node_out")
+    one = helper.make_tensor("one", TensorProto.FLOAT, [1], [1.0])
+    graph = helper.make_graph(
+        [n1, n2],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [2])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [2])],
+        [one],
+    )
+    return helper.make_model(graph).SerializeToString()
+
+
+def test_onnx_hash_ignores_debug_information_and_value_numbering_only():
+    base = bc.onnx_normalised(_onnx_model("val_7", "Mul", 'File "/work/a/stage.py", line 10'))
+    renumbered = bc.onnx_normalised(_onnx_model("val_12", "Mul", 'File "/work/b/x.py", line 3'))
+    other_op = bc.onnx_normalised(_onnx_model("val_7", "Add", 'File "/work/a/stage.py", line 10'))
+    assert renumbered == base
+    assert other_op["normalised_sha256"] != base["normalised_sha256"]
+    assert other_op["ops"] == {"Add": 2}
