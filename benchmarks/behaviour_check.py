@@ -118,8 +118,11 @@ def mask_text(text: str, replacements: dict[str, str] | None = None) -> list[str
     for literal, mark in sorted((replacements or {}).items(), key=lambda kv: -len(kv[0])):
         if literal:
             text = text.replace(literal, mark)
+    lines = text.replace("\r\n", "\n").split("\n")
+    if lines and lines[-1] == "":
+        lines.pop()
     out = []
-    for line in text.splitlines():
+    for line in lines:
         line = line.rsplit("\r", 1)[-1]  # a progress bar redrawn in place: its last state
         line = _ABS_PATH.sub("<path>", line)
         for pattern, mark in _MASKS:

@@ -129,10 +129,12 @@ def test_normaliser_of_a_manifest_line_list_and_the_stdout_mask():
     masked = bc.mask_text(
         "cleaned 1 file(s) (1 frames) in 0.5 s, 2.2 frames/s; output /tmp/x/out/a\n"
         "column stripe energy down 16.3 dB\n"
+        "files 1/2\rfiles 2/2\n"
     )
     assert masked == [
         "cleaned 1 file(s) (1 frames) in <time>, <rate>; output <path>",
         "column stripe energy down 16.3 dB",
+        "files 2/2",
     ]
 
 
