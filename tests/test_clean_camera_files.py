@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from _bags import frames, write_realsense, write_ros1, write_ros2
+from conftest import real_capture
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.clean import CleanConfig, clean
@@ -19,16 +20,8 @@ from tof_fpn_torch.clean.manifest import read_manifest
 from tof_fpn_torch.cli import main
 from tof_fpn_torch.io.captures import ADI_INTERLEAVED_DTYPE
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 ADI = ("wall_depth_u16le_512x512.bin", "wall_ir_u16le_512x512.bin")
 OFFICE = "office_mode3_interleaved_512x512.bin"
-
-
-def _real(rel: str) -> Path:
-    path = REAL / rel
-    if not path.exists():
-        pytest.fail(f"real capture missing: {path} (../shared/data/real beside the repository)")
-    return path
 
 
 def _cli(argv, capsys):
@@ -42,7 +35,7 @@ def _records(out) -> dict[str, dict]:
 
 
 def test_clean_the_real_mkv_gives_a_recording_of_the_same_shape(tmp_path, capsys):
-    mkv = _real("azure_kinect/desk_recording.mkv")
+    mkv = real_capture("azure_kinect/desk_recording.mkv")
     out = tmp_path / "out"
     status, stdout, err = _cli(["clean", mkv, out, "--quiet"], capsys)
     assert status == 0 and err == [] and "cleaned 1 file(s) (1 frames)" in stdout, (stdout, err)
@@ -61,7 +54,7 @@ def test_clean_the_real_mkv_gives_a_recording_of_the_same_shape(tmp_path, capsys
 
 def test_clean_the_real_data_folder_takes_every_camera_file(tmp_path, capsys):
     out = tmp_path / "out"
-    status, stdout, err = _cli(["clean", _real(""), out, "--quiet"], capsys)
+    status, stdout, err = _cli(["clean", real_capture(""), out, "--quiet"], capsys)
     assert status == 0 and err == [] and "cleaned 3 file(s) (3 frames)" in stdout, (stdout, err)
     assert sorted(_records(out)) == [
         f"adi_adtf3175/{OFFICE}",
@@ -75,7 +68,7 @@ def test_clean_adi_vendor_files_in_their_own_format(tmp_path, capsys):
     src = tmp_path / "adi"
     src.mkdir()
     for name in (*ADI, OFFICE):
-        shutil.copyfile(_real(f"adi_adtf3175/{name}"), src / name)
+        shutil.copyfile(real_capture(f"adi_adtf3175/{name}"), src / name)
     out = tmp_path / "out"
     # column destriping moves the wall's depth (it has column stripes): the depth really goes
     # through the pipeline and back

@@ -5,7 +5,7 @@ Small seeded recordings from the package's simulator with the baseline's physics
 bad input gives one clear error line and writes nothing; ``report.json`` has the issue's
 shape; a planted cyclic error and a planted column-delay pattern are named first; a null
 recording gives ``none``; the refitted ``model.json`` loads back as ``--baseline``; the ADI
-wall capture (``../shared/data/real``; missing: the test fails) shows a broadband column pattern.
+wall capture (``tests/data/real``; missing: the test fails) shows a broadband column pattern.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import REAL_DATA_DIR, real_capture
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
@@ -279,22 +280,14 @@ def test_null_recording_gives_none():
 
 # --- real data -----------------------------------------------------------------------------------
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 ADI_WALL = ("adi_adtf3175/wall_depth_u16le_512x512.bin", "adi_adtf3175/wall_ir_u16le_512x512.bin")
-
-
-def _real(rel: str) -> Path:
-    path = REAL / rel
-    if not path.is_file():
-        pytest.fail(f"real capture missing: {path} (../shared/data/real beside the repository)")
-    return path
 
 
 def test_adi_wall_column_pattern_is_broadband_and_modelled():
     """One frame of the ADI wall (a 128 x 160 crop of its centre), scene estimated: the column
     pattern is found, its spectrum is broadband (not 2 pi / 3 / pi), and modelling it improves
     the held-out fit (the whole frame: docs/diagnosis.md)."""
-    depth, ir = tio.read_adi_depth_ir(_real(ADI_WALL[0]), _real(ADI_WALL[1]))
+    depth, ir = tio.read_adi_depth_ir(real_capture(ADI_WALL[0]), real_capture(ADI_WALL[1]))
     crop = (..., slice(192, 320), slice(176, 336))
     meta = {"modulation_frequency_hz": None, "integration_time_us": None, "n_phases": None}
     diag = diagnose(tio.Recording(depth[crop], ir[crop], meta), None, replicates=0)
@@ -336,7 +329,7 @@ def test_cli_takes_a_cameras_own_file(tmp_path, capsys):
     it and the scene estimated from it (a plain array .npz is refused: the bad-input test)."""
     h, w = 64, 64
     for kind, src in zip(("depth", "ir"), ADI_WALL, strict=True):
-        full = np.fromfile(REAL / src, dtype="<u2").reshape(512, 512)
+        full = np.fromfile(REAL_DATA_DIR / src, dtype="<u2").reshape(512, 512)
         full[200 : 200 + h, 200 : 200 + w].copy().tofile(tmp_path / f"cap_{kind}_u16le_{h}x{w}.bin")
     out = tmp_path / "out"
     depth_file = tmp_path / f"cap_depth_u16le_{h}x{w}.bin"
