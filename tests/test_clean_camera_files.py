@@ -1,6 +1,7 @@
-"""``tof-fpn clean`` on camera files: the real Azure Kinect ``.mkv`` and ADI vendor files (and the
-real-data folder itself), ROS 1 / ROS 2 / RealSense bags in a tree, resume on bag folders, the
-refusal of a folder with nothing to clean, output names two inputs would share."""
+"""``tof-fpn clean`` on camera files: the real Azure Kinect ``.mkv`` and ADI vendor files (also side
+by side in one folder, and beside the ESPROS HDF5 files, which fail alone), ROS 1 / ROS 2 /
+RealSense bags in a tree, resume on bag folders, the refusal of a folder with nothing to clean,
+output names two inputs would share."""
 
 from __future__ import annotations
 
@@ -52,9 +53,28 @@ def test_clean_the_real_mkv_gives_a_recording_of_the_same_shape(tmp_path, capsys
     assert _records(out)["desk_recording.mkv"]["outputs"] == ["desk_recording.npz"]
 
 
+def _handed_over(dst: Path, rels) -> Path:
+    """Copies of real captures under ``dst``, in their folders, as a user hands them over."""
+    for rel in rels:
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(real_capture(rel), dst / rel)
+    return dst
+
+
 def test_clean_the_real_data_folder_takes_every_camera_file(tmp_path, capsys):
+    """The three camera file formats side by side (ADI pair and interleaved file, Azure Kinect
+    .mkv), with the Kinect v2 P0 table and the README beside them, in one folder."""
+    src = _handed_over(
+        tmp_path / "in",
+        [
+            *(f"adi_adtf3175/{name}" for name in (*ADI, OFFICE)),
+            "azure_kinect/desk_recording.mkv",
+            "kinect_v2_p0/p0tables_3x424x512_u16le.dat",
+            "README.md",
+        ],
+    )
     out = tmp_path / "out"
-    status, stdout, err = _cli(["clean", real_capture(""), out, "--quiet"], capsys)
+    status, stdout, err = _cli(["clean", src, out, "--quiet"], capsys)
     assert status == 0 and err == [] and "cleaned 3 file(s) (3 frames)" in stdout, (stdout, err)
     assert sorted(_records(out)) == [
         f"adi_adtf3175/{OFFICE}",
@@ -62,6 +82,29 @@ def test_clean_the_real_data_folder_takes_every_camera_file(tmp_path, capsys):
         "azure_kinect/desk_recording.mkv",
     ]  # README.md and the Kinect v2 P0 table (.dat, not a depth frame) are not jobs
     assert (out / "azure_kinect" / "desk_recording.npz").is_file()
+
+
+def test_the_espros_hdf5_files_fail_alone_with_a_one_line_reason(tmp_path, capsys):
+    """The ESPROS TOFcam635 HDF5 files (amplitude frames, a point cloud: no depth image) beside an
+    ADI pair: each is reported failed with one line naming what it lacks; the pair is cleaned."""
+    espros = [
+        "espros_tofcam635/amplitude_w544c005_250527_134627.h5",
+        "espros_tofcam635/point_cloud_w544c005_250527_134722.h5",
+    ]
+    src = _handed_over(tmp_path / "in", [*espros, *(f"adi_adtf3175/{name}" for name in ADI)])
+    out = tmp_path / "out"
+    status, stdout, err = _cli(["clean", src, out, "--quiet"], capsys)
+    assert status == 1 and "cleaned 1 file(s) (1 frames)" in stdout, (stdout, err)
+    assert err[-1].startswith("tof-fpn clean: error: 2 of 3 file(s) failed"), err
+    records = _records(out)
+    assert records[f"adi_adtf3175/{ADI[0]}"]["status"] == "done"
+    assert (out / "adi_adtf3175" / ADI[0]).is_file()
+    for rel in espros:
+        reason = records[rel]["error"]
+        assert records[rel]["status"] == "failed" and "\n" not in reason, records[rel]
+        assert reason == f"{src / rel}: no group holds both a 'depth' and an 'amplitude' dataset"
+        assert f"failed: {rel}: {reason}" in stdout.splitlines()  # the summary names it
+    assert not list(out.rglob("*.h5"))  # nothing written for them
 
 
 def test_clean_adi_vendor_files_in_their_own_format(tmp_path, capsys):
