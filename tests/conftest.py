@@ -9,6 +9,7 @@ import the tests, name the same folder in ``benchmarks/real_captures.py``.
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,6 +40,25 @@ def real_capture(rel: str) -> Path:
     if not path.exists():
         pytest.fail(f"real capture missing: {path} (tests/data/real in the repository)")
     return path
+
+
+#: the three camera file formats of the real captures (ADI pair and interleaved file, Azure
+#: Kinect .mkv) with the Kinect v2 P0 table (not a frame) and the README beside them, as a user
+#: hands a folder over; the ESPROS HDF5 files (no depth image) are left out
+CAMERA_FILES = (
+    *ADI_FILES,
+    "azure_kinect/desk_recording.mkv",
+    "kinect_v2_p0/p0tables_3x424x512_u16le.dat",
+    "README.md",
+)
+
+
+def handed_over(dst: Path, rels=CAMERA_FILES) -> Path:
+    """Copies of the real captures ``rels`` under ``dst``, in their folders; returns ``dst``."""
+    for rel in rels:
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(real_capture(rel), dst / rel)
+    return dst
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 from _bags import frames, write_realsense, write_ros1, write_ros2
-from conftest import real_capture
+from conftest import handed_over, real_capture
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.clean import CleanConfig, clean
@@ -53,26 +53,10 @@ def test_clean_the_real_mkv_gives_a_recording_of_the_same_shape(tmp_path, capsys
     assert _records(out)["desk_recording.mkv"]["outputs"] == ["desk_recording.npz"]
 
 
-def _handed_over(dst: Path, rels) -> Path:
-    """Copies of real captures under ``dst``, in their folders, as a user hands them over."""
-    for rel in rels:
-        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(real_capture(rel), dst / rel)
-    return dst
-
-
 def test_clean_the_real_data_folder_takes_every_camera_file(tmp_path, capsys):
     """The three camera file formats side by side (ADI pair and interleaved file, Azure Kinect
     .mkv), with the Kinect v2 P0 table and the README beside them, in one folder."""
-    src = _handed_over(
-        tmp_path / "in",
-        [
-            *(f"adi_adtf3175/{name}" for name in (*ADI, OFFICE)),
-            "azure_kinect/desk_recording.mkv",
-            "kinect_v2_p0/p0tables_3x424x512_u16le.dat",
-            "README.md",
-        ],
-    )
+    src = handed_over(tmp_path / "in")  # conftest.CAMERA_FILES
     out = tmp_path / "out"
     status, stdout, err = _cli(["clean", src, out, "--quiet"], capsys)
     assert status == 0 and err == [] and "cleaned 3 file(s) (3 frames)" in stdout, (stdout, err)
@@ -91,7 +75,7 @@ def test_the_espros_hdf5_files_fail_alone_with_a_one_line_reason(tmp_path, capsy
         "espros_tofcam635/amplitude_w544c005_250527_134627.h5",
         "espros_tofcam635/point_cloud_w544c005_250527_134722.h5",
     ]
-    src = _handed_over(tmp_path / "in", [*espros, *(f"adi_adtf3175/{name}" for name in ADI)])
+    src = handed_over(tmp_path / "in", [*espros, *(f"adi_adtf3175/{name}" for name in ADI)])
     out = tmp_path / "out"
     status, stdout, err = _cli(["clean", src, out, "--quiet"], capsys)
     assert status == 1 and "cleaned 1 file(s) (1 frames)" in stdout, (stdout, err)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 from _bags import frames, write_ros1
-from conftest import real_capture
+from conftest import handed_over, real_capture
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
@@ -29,7 +29,8 @@ def test_help(capsys):
 
 
 def test_the_real_mkv_and_adi_files_become_recordings(tmp_path, capsys):
-    status, out, err = _cli([real_capture(""), tmp_path / "rec"], capsys)
+    src = handed_over(tmp_path / "in")  # the three camera formats, the P0 table, the README
+    status, out, err = _cli([src, tmp_path / "rec"], capsys)
     assert status == 0 and err == [] and "converted 3 file(s) (3 frames)" in out, (out, err)
     mkv = tio.read_azure_kinect_mkv(real_capture("azure_kinect/desk_recording.mkv"))
     rec = tio.read_recording(tmp_path / "rec" / "azure_kinect" / "desk_recording.npz")
@@ -50,7 +51,7 @@ def test_the_real_mkv_and_adi_files_become_recordings(tmp_path, capsys):
     assert office.meta["camera"] == "adtf3175" and office.depth.shape == (1, 1, 512, 512)
     # nothing is overwritten: a second run fails every input and leaves the files as they were
     before = (tmp_path / "rec" / "adi_adtf3175" / "wall.npz").read_bytes()
-    status, _, err = _cli([real_capture(""), tmp_path / "rec"], capsys)
+    status, _, err = _cli([src, tmp_path / "rec"], capsys)
     assert (
         status == 1
         and len(err) == 3
