@@ -47,6 +47,8 @@ DOCS = ROOT / "docs"
 #: pages whose blocks are not run: the lead's architecture page (no commands) and the benchmarks
 #: (hours of runs; their scripts are checked by test_benchmark_scripts_exist)
 NOT_RUN = {"architecture.md", "benchmarks.md"}
+#: pages run only with the slow tests (whole diagnoses, folders cleaned): ``-m slow``
+SLOW = {"diagnosis.md", "clean.md"}
 
 #: (command, seconds) of every command run, for the slowest-commands report
 TIMES: list[tuple[str, float]] = []
@@ -170,7 +172,10 @@ def _run_words(line: str, words: list[str], capsys) -> None:
     assert proc.returncode == 0, f"{line!r} exited with {proc.returncode}:\n{proc.stderr}"
 
 
-@pytest.mark.parametrize("page", guide_pages())
+@pytest.mark.parametrize(
+    "page",
+    [pytest.param(p, marks=pytest.mark.slow) if p in SLOW else p for p in guide_pages()],
+)
 def test_page_runs_as_written(page, tmp_path, monkeypatch, capsys):
     text = (DOCS / page).read_text()
     monkeypatch.chdir(tmp_path)
