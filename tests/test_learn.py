@@ -332,7 +332,7 @@ def test_checkpoint_round_trip_and_refusals(tmp_path):
         save_model(tmp_path / "x.pt", model, "nope", settings, THRESHOLDS)
 
 
-@pytest.mark.parametrize("fmt", ["torchscript", "onnx"])
+@pytest.mark.parametrize("fmt", ["torchscript", pytest.param("onnx", marks=pytest.mark.slow)])
 def test_cli_exports_a_trained_model(tmp_path, capsys, fmt):
     tr, settings = _trained()
     ckpt = save_model(
