@@ -19,7 +19,7 @@ change that is meant to change behaviour, and say so.
 
 * ``OUTDIR/inputs/``: the inputs, made here with NumPy and the package's file writers;
   ``adi/wall_depth.png`` + ``adi/wall_amplitude.png`` (the real ADI ADTF3175 wall capture of
-  ``../shared/data/real`` as a uint16-mm PNG pair), ``mkv/desk_recording.mkv`` (the real Azure
+  ``tests/data/real`` as a uint16-mm PNG pair), ``mkv/desk_recording.mkv`` (the real Azure
   Kinect recording, copied), ``striped/`` (six PNG pairs with a shared column pattern and depth
   edges, a multi-frame TIFF pair and a multi-frame HDF5 file with a moving object) and
   ``diagnose/`` (a simulated recording with a cyclic error, and its scene);
@@ -64,6 +64,7 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from real_captures import REAL_DATA_DIR
 
 try:
     import tomllib
@@ -73,7 +74,7 @@ except ModuleNotFoundError:  # Python 3.10
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # the package of this checkout, not an installed copy
     sys.path.insert(0, str(ROOT))
-REAL = ROOT.parent / "shared" / "data" / "real"
+REAL = REAL_DATA_DIR
 FORMAT = 1  # of behaviour.json
 
 # --- normalising manifests and reports ----------------------------------------------------------
@@ -380,7 +381,7 @@ def onnx_outputs(path: Path) -> dict:
 def _real(rel: str) -> Path:
     p = REAL / rel
     if not p.is_file():
-        raise SystemExit(f"real capture missing: {p} (../shared/data/real beside the repository)")
+        raise SystemExit(f"real capture missing: {p} (tests/data/real of the repository)")
     return p
 
 

@@ -7,7 +7,7 @@
 
 Sections (definitions in docs/destripe.md):
 
-* ``adi``: the real ADI ADTF3175 wall (../shared/data/real). Column-stripe energy
+* ``adi``: the real ADI ADTF3175 wall (tests/data/real). Column-stripe energy
   (tof_fpn_torch.analysis.stripe_energy: covariance of the top- and bottom-half column profiles of
   the 9-column horizontal high-pass, in a region away from the cable edge and the clutter) before,
   after destripe() of the whole frame, after destripe() of each half alone (the unbiased
@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from real_captures import REAL_DATA_DIR
 
 from tof_fpn_torch import constants as K
 from tof_fpn_torch.analysis.calibrate_complex import calibrate_complex_pattern
@@ -75,7 +76,7 @@ def _rel(path: Path) -> str:
     return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
 
 
-REAL = ROOT.parent / "shared" / "data" / "real" / "adi_adtf3175"
+REAL = REAL_DATA_DIR / "adi_adtf3175"
 #: ADI wall region: rows above the clutter, columns away from the borders, split between halves
 ADI_ROWS, ADI_BORDER, ADI_SPLIT = 416, 8, 208
 #: ADI wall: |9-column high-pass| above this (mm), dilated by 6 px, is the cable edge

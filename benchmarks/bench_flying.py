@@ -311,10 +311,11 @@ def speed(rounds: int, threads: int) -> dict:
 
 
 def real_frames() -> list[tuple[str, torch.Tensor, torch.Tensor]]:
-    """``(name, depth m, amplitude)`` of the public captures (../shared/data/real)."""
+    """``(name, depth m, amplitude)`` of the public captures (tests/data/real)."""
+    from real_captures import REAL_DATA_DIR as real
+
     from tof_fpn_torch import io as tio
 
-    real = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
     adi = real / "adi_adtf3175"
     rec = tio.read_azure_kinect_mkv(real / "azure_kinect" / "desk_recording.mkv")
     desk, ir = rec.depth[:1].double(), rec.amplitude[:1].double()

@@ -30,7 +30,7 @@ the amplitude, persistence 4 frames) eager and TorchScript against the NumPy lib
 (persistence "valid in 2 of the last 4"); times are medians of ``--rounds`` rounds, ratios
 medians of the per-round ratios.
 
-``--real``: the Azure Kinect recording (``../shared/data/real/azure_kinect/desk_recording.mkv``)
+``--real``: the Azure Kinect recording (``tests/data/real/azure_kinect/desk_recording.mkv``)
 holds one depth frame, so its temporal noise cannot be measured. The figure shows the frame
 through the filter (a first frame comes out unchanged, checked) and a replay: the real frame
 repeated 120 times with Gaussian noise of the law ``k / A`` fitted on it (its IR as ``A``,
@@ -54,13 +54,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from real_captures import REAL_DATA_DIR
 
 from tof_fpn_torch.runtime import TemporalFilter, promised_noise_factor, temporal_state
 
 H, W, T, STILL, SPEED, CALIB = 120, 160, 400, 40, 2, 30
 BOARD = (40, 80, 10, 40)  # rows 40-79, columns 10-39 at rest
 ROOT = Path(__file__).resolve().parents[1]
-REAL = ROOT.parent / "shared" / "data" / "real" / "azure_kinect" / "desk_recording.mkv"
+REAL = REAL_DATA_DIR / "azure_kinect" / "desk_recording.mkv"
 
 
 # --- the peer: librealsense's temporal filter in NumPy -------------------------------------------

@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/camera_profiles.py
 
-Prints, for every capture with an amplitude channel in ../shared/data/real, the fitted noise law
+Prints, for every capture with an amplitude channel in tests/data/real, the fitted noise law
 ``sigma_D = k / A`` and the thresholds :func:`tof_fpn_torch.build.fusion_from_noise` places at 4 %
 and 0.8 % relative depth noise, and checks the rule on the paper's own synthetic data (it must give
 about 70 and 350 there).
@@ -13,10 +13,10 @@ about 70 and 350 there).
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import torch
+from real_captures import REAL_DATA_DIR
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.build import fusion_from_noise
@@ -24,7 +24,7 @@ from tof_fpn_torch.denoise import estimate_noise_k
 from tof_fpn_torch.experiments.common import make_synthetic_data
 from tof_fpn_torch.runtime import valid_mask
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+REAL = REAL_DATA_DIR
 
 
 def _report(name: str, depth: torch.Tensor, amp: torch.Tensor, unit: str) -> None:

@@ -5,9 +5,9 @@ tiny (5x7, 9x13), odd (191x255) and large (1024x1280) striped and stripe-free fr
 """
 
 import math
-from pathlib import Path
 
 import torch
+from real_captures import REAL_DATA_DIR
 
 from tof_fpn_torch.analysis.metrics import psnr
 from tof_fpn_torch.build import suppression_from_data, suppression_from_design
@@ -15,8 +15,8 @@ from tof_fpn_torch.io import read_adi_depth_ir, read_adi_interleaved
 from tof_fpn_torch.runtime import valid_mask
 from tof_fpn_torch.sim import add_depth_noise, planar_scene, synthetic_scene
 
-#: the real captures beside the repository (../shared/data/real)
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "adi_adtf3175"
+#: the real ADI captures (tests/data/real in the repository)
+REAL = REAL_DATA_DIR / "adi_adtf3175"
 
 
 def report(name, d, a, stages):

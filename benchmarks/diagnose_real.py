@@ -1,10 +1,10 @@
 """``diagnose`` on real data: the ADI ADTF3175 wall capture, the Azure Kinect desk recording and
 a Kinect v2 P0 pattern.
 
-1. ADI wall (``../shared/data/real/adi_adtf3175``): one frame, 512 x 512, depth and IR, no scene:
+1. ADI wall (``tests/data/real/adi_adtf3175``): one frame, 512 x 512, depth and IR, no scene:
    the scene is estimated from the capture. Expected: ``fpn_pattern`` with a broadband column
    profile (not the 2 pi / 3 and pi of the baseline), fit improved.
-2. Azure Kinect desk (``../shared/data/real/azure_kinect/desk_recording.mkv``, as it is): its
+2. Azure Kinect desk (``tests/data/real/azure_kinect/desk_recording.mkv``, as it is): its
    depth and active IR (one frame), no scene: the scene is estimated from the recording.
 3. Kinect v2 P0 column structure: the column-to-column phase steps of the 80 MHz P0 table
    (median over rows; its rows alternate by pi, so steps along the row are used), high-passed
@@ -34,8 +34,8 @@ import torch
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 from concealed_generator import C_AIR, generate  # noqa: E402 (a sibling script)
+from real_captures import REAL_DATA_DIR as REAL  # noqa: E402 (a sibling script)
 
-REAL = ROOT.parent / "shared" / "data" / "real"
 AZURE = "azure_kinect/desk_recording.mkv"
 ADI = ("adi_adtf3175/wall_depth_u16le_512x512.bin", "adi_adtf3175/wall_ir_u16le_512x512.bin")
 P0 = "kinect_v2_p0/p0tables_3x424x512_u16le.dat"

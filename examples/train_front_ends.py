@@ -46,7 +46,7 @@ from tof_fpn_torch.learn import FRONT_ENDS, Settings, save_model
 from tof_fpn_torch.plotting import pyplot
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL = ROOT.parent / "shared" / "data" / "real"
+REAL = ROOT / "tests" / "data" / "real"  # the real captures, as in benchmarks/real_captures.py
 
 
 def taps_report(model, design: np.ndarray) -> dict | None:

@@ -1,12 +1,15 @@
-"""Shared fixtures: the real ToF captures (``../shared/data/real`` next to the repository).
+"""Shared fixtures: the real ToF captures (``tests/data/real``, README there: files, licences).
 
 The captures are part of the test data, not an optional extra: when they are missing the tests
 that need them FAIL with a message saying where they were looked for (never skip), so a broken
-checkout cannot pass as green.
+checkout cannot pass as green. Test modules take the folder and the check from here
+(``from conftest import REAL_DATA_DIR, real_capture``); the benchmarks and examples, which do not
+import the tests, name the same folder in ``benchmarks/real_captures.py``.
 """
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,9 +22,9 @@ from hypothesis import settings
 settings.register_profile("seeded", derandomize=True, database=None)
 settings.load_profile("seeded")
 
-#: the repository root is the parent of tests/; the shared data sit beside the repository
+#: the repository root is the parent of tests/; the real captures are in the repository
 REPO_ROOT = Path(__file__).resolve().parents[1]
-REAL_DATA_DIR = REPO_ROOT.parent / "shared" / "data" / "real"
+REAL_DATA_DIR = REPO_ROOT / "tests" / "data" / "real"
 
 ADI_SIZE = 512
 ADI_FILES = (
@@ -29,6 +32,33 @@ ADI_FILES = (
     "adi_adtf3175/wall_ir_u16le_512x512.bin",
     "adi_adtf3175/office_mode3_interleaved_512x512.bin",
 )
+
+
+def real_capture(rel: str) -> Path:
+    """``REAL_DATA_DIR / rel``; fails the calling test (never skips) when it does not exist."""
+    path = REAL_DATA_DIR / rel
+    if not path.exists():
+        pytest.fail(f"real capture missing: {path} (tests/data/real in the repository)")
+    return path
+
+
+#: the three camera file formats of the real captures (ADI pair and interleaved file, Azure
+#: Kinect .mkv) with the Kinect v2 P0 table (not a frame) and the README beside them, as a user
+#: hands a folder over; the ESPROS HDF5 files (no depth image) are left out
+CAMERA_FILES = (
+    *ADI_FILES,
+    "azure_kinect/desk_recording.mkv",
+    "kinect_v2_p0/p0tables_3x424x512_u16le.dat",
+    "README.md",
+)
+
+
+def handed_over(dst: Path, rels=CAMERA_FILES) -> Path:
+    """Copies of the real captures ``rels`` under ``dst``, in their folders; returns ``dst``."""
+    for rel in rels:
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(real_capture(rel), dst / rel)
+    return dst
 
 
 @dataclass(frozen=True)
@@ -73,7 +103,7 @@ def real_data() -> RealData:
     if not REAL_DATA_DIR.is_dir():
         pytest.fail(
             f"real ToF captures not found: expected the folder {REAL_DATA_DIR} "
-            "(../shared/data/real relative to the repository root); the real-data tests need it"
+            "(tests/data/real in the repository); the real-data tests need it"
         )
     missing = [f for f in ADI_FILES if not (REAL_DATA_DIR / f).is_file()]
     if missing:

@@ -1,6 +1,7 @@
-"""``tof-fpn clean`` on camera files: the real Azure Kinect ``.mkv`` and ADI vendor files (and the
-real-data folder itself), ROS 1 / ROS 2 / RealSense bags in a tree, resume on bag folders, the
-refusal of a folder with nothing to clean, output names two inputs would share."""
+"""``tof-fpn clean`` on camera files: the real Azure Kinect ``.mkv`` and ADI vendor files (also side
+by side in one folder, and beside the ESPROS HDF5 files, which fail alone), ROS 1 / ROS 2 /
+RealSense bags in a tree, resume on bag folders, the refusal of a folder with nothing to clean,
+output names two inputs would share."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 from _bags import frames, write_realsense, write_ros1, write_ros2
+from conftest import handed_over, real_capture
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.clean import CleanConfig, clean
@@ -19,16 +21,8 @@ from tof_fpn_torch.clean.manifest import read_manifest
 from tof_fpn_torch.cli import main
 from tof_fpn_torch.io.captures import ADI_INTERLEAVED_DTYPE
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 ADI = ("wall_depth_u16le_512x512.bin", "wall_ir_u16le_512x512.bin")
 OFFICE = "office_mode3_interleaved_512x512.bin"
-
-
-def _real(rel: str) -> Path:
-    path = REAL / rel
-    if not path.exists():
-        pytest.fail(f"real capture missing: {path} (../shared/data/real beside the repository)")
-    return path
 
 
 def _cli(argv, capsys):
@@ -42,7 +36,7 @@ def _records(out) -> dict[str, dict]:
 
 
 def test_clean_the_real_mkv_gives_a_recording_of_the_same_shape(tmp_path, capsys):
-    mkv = _real("azure_kinect/desk_recording.mkv")
+    mkv = real_capture("azure_kinect/desk_recording.mkv")
     out = tmp_path / "out"
     status, stdout, err = _cli(["clean", mkv, out, "--quiet"], capsys)
     assert status == 0 and err == [] and "cleaned 1 file(s) (1 frames)" in stdout, (stdout, err)
@@ -60,8 +54,11 @@ def test_clean_the_real_mkv_gives_a_recording_of_the_same_shape(tmp_path, capsys
 
 
 def test_clean_the_real_data_folder_takes_every_camera_file(tmp_path, capsys):
+    """The three camera file formats side by side (ADI pair and interleaved file, Azure Kinect
+    .mkv), with the Kinect v2 P0 table and the README beside them, in one folder."""
+    src = handed_over(tmp_path / "in")  # conftest.CAMERA_FILES
     out = tmp_path / "out"
-    status, stdout, err = _cli(["clean", _real(""), out, "--quiet"], capsys)
+    status, stdout, err = _cli(["clean", src, out, "--quiet"], capsys)
     assert status == 0 and err == [] and "cleaned 3 file(s) (3 frames)" in stdout, (stdout, err)
     assert sorted(_records(out)) == [
         f"adi_adtf3175/{OFFICE}",
@@ -71,11 +68,34 @@ def test_clean_the_real_data_folder_takes_every_camera_file(tmp_path, capsys):
     assert (out / "azure_kinect" / "desk_recording.npz").is_file()
 
 
+def test_the_espros_hdf5_files_fail_alone_with_a_one_line_reason(tmp_path, capsys):
+    """The ESPROS TOFcam635 HDF5 files (amplitude frames, a point cloud: no depth image) beside an
+    ADI pair: each is reported failed with one line naming what it lacks; the pair is cleaned."""
+    espros = [
+        "espros_tofcam635/amplitude_w544c005_250527_134627.h5",
+        "espros_tofcam635/point_cloud_w544c005_250527_134722.h5",
+    ]
+    src = handed_over(tmp_path / "in", [*espros, *(f"adi_adtf3175/{name}" for name in ADI)])
+    out = tmp_path / "out"
+    status, stdout, err = _cli(["clean", src, out, "--quiet"], capsys)
+    assert status == 1 and "cleaned 1 file(s) (1 frames)" in stdout, (stdout, err)
+    assert err[-1].startswith("tof-fpn clean: error: 2 of 3 file(s) failed"), err
+    records = _records(out)
+    assert records[f"adi_adtf3175/{ADI[0]}"]["status"] == "done"
+    assert (out / "adi_adtf3175" / ADI[0]).is_file()
+    for rel in espros:
+        reason = records[rel]["error"]
+        assert records[rel]["status"] == "failed" and "\n" not in reason, records[rel]
+        assert reason == f"{src / rel}: no group holds both a 'depth' and an 'amplitude' dataset"
+        assert f"failed: {rel}: {reason}" in stdout.splitlines()  # the summary names it
+    assert not list(out.rglob("*.h5"))  # nothing written for them
+
+
 def test_clean_adi_vendor_files_in_their_own_format(tmp_path, capsys):
     src = tmp_path / "adi"
     src.mkdir()
     for name in (*ADI, OFFICE):
-        shutil.copyfile(_real(f"adi_adtf3175/{name}"), src / name)
+        shutil.copyfile(real_capture(f"adi_adtf3175/{name}"), src / name)
     out = tmp_path / "out"
     # column destriping moves the wall's depth (it has column stripes): the depth really goes
     # through the pipeline and back

@@ -21,6 +21,8 @@ from _clean_data import png_folder, tree
 
 from tof_fpn_torch.clean import CleanConfig, clean
 
+pytestmark = pytest.mark.slow  # 300-file runs killed and restarted: `python -m pytest -m slow`
+
 ROOT = Path(__file__).resolve().parents[1]
 N = 300
 FLAGS = ["--batch", "4", "--denoise", "nlm", "--denoise-opt", "patch_distance=4"]

@@ -16,6 +16,8 @@ from tof_fpn_torch.clean import CleanConfig, clean
 from tof_fpn_torch.clean.manifest import read_manifest
 from tof_fpn_torch.cli import main
 
+pytestmark = pytest.mark.slow  # a local Ray instance: `python -m pytest -m slow` runs them
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = CleanConfig(destripe="columns", batch=4)
 

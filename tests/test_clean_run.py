@@ -81,6 +81,7 @@ def test_worker_modes_give_the_same_bytes(tmp_path):
     assert trees[0] == trees[1] == trees[2]
 
 
+@pytest.mark.slow
 def test_resume_skips_finished_and_redoes_missing_or_changed(tmp_path):
     src = png_folder(tmp_path / "in", 12, sub_every=0)
     cfg = CleanConfig(destripe="columns", batch=4)

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import real_capture
 
 import tof_fpn_torch
 from tof_fpn_torch import constants as K
@@ -423,10 +424,7 @@ def test_readme_commands_work_as_written(cwd, capsys, monkeypatch):
     if importlib.util.find_spec("onnx") is not None:
         monkeypatch.setattr(X, "export_onnx", _fake_export_onnx())  # the real one: test_export.py
     # the convert example's input: the real Azure Kinect recording (fails, never skips, if absent)
-    mkv = ROOT.parent / "shared" / "data" / "real" / "azure_kinect" / "desk_recording.mkv"
-    if not mkv.is_file():
-        pytest.fail(f"real capture missing: {mkv} (../shared/data/real beside the repository)")
-    shutil.copyfile(mkv, "desk_recording.mkv")
+    shutil.copyfile(real_capture("azure_kinect/desk_recording.mkv"), "desk_recording.mkv")
     _sample_frames("wall_frames", walls=True)  # the folders the README's examples name
     _sample_frames("my_frames", walls=False)
     for command in readme_commands():

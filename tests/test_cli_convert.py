@@ -4,24 +4,15 @@ topics named on the command line; one-line errors with exit status 2; nothing ov
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from _bags import frames, write_ros1
+from conftest import handed_over, real_capture
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
-
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
-
-
-def _real(rel: str) -> Path:
-    path = REAL / rel
-    if not path.exists():
-        pytest.fail(f"real capture missing: {path} (../shared/data/real beside the repository)")
-    return path
 
 
 def _cli(argv, capsys):
@@ -38,9 +29,10 @@ def test_help(capsys):
 
 
 def test_the_real_mkv_and_adi_files_become_recordings(tmp_path, capsys):
-    status, out, err = _cli([_real(""), tmp_path / "rec"], capsys)
+    src = handed_over(tmp_path / "in")  # the three camera formats, the P0 table, the README
+    status, out, err = _cli([src, tmp_path / "rec"], capsys)
     assert status == 0 and err == [] and "converted 3 file(s) (3 frames)" in out, (out, err)
-    mkv = tio.read_azure_kinect_mkv(_real("azure_kinect/desk_recording.mkv"))
+    mkv = tio.read_azure_kinect_mkv(real_capture("azure_kinect/desk_recording.mkv"))
     rec = tio.read_recording(tmp_path / "rec" / "azure_kinect" / "desk_recording.npz")
     assert torch.equal(rec.depth.isnan(), mkv.depth.isnan()) and torch.equal(
         rec.depth.nan_to_num(), mkv.depth.nan_to_num()
@@ -49,7 +41,7 @@ def test_the_real_mkv_and_adi_files_become_recordings(tmp_path, capsys):
     assert torch.equal(rec.timestamps_s, mkv.timestamps_s)
     wall = tio.read_recording(tmp_path / "rec" / "adi_adtf3175" / "wall.npz")
     d, ir = tio.read_adi_depth_ir(
-        *(_real(f"adi_adtf3175/wall_{k}_u16le_512x512.bin") for k in ("depth", "ir"))
+        *(real_capture(f"adi_adtf3175/wall_{k}_u16le_512x512.bin") for k in ("depth", "ir"))
     )
     assert torch.equal(wall.depth.nan_to_num(), d.nan_to_num()) and torch.equal(wall.amplitude, ir)
     assert (
@@ -59,7 +51,7 @@ def test_the_real_mkv_and_adi_files_become_recordings(tmp_path, capsys):
     assert office.meta["camera"] == "adtf3175" and office.depth.shape == (1, 1, 512, 512)
     # nothing is overwritten: a second run fails every input and leaves the files as they were
     before = (tmp_path / "rec" / "adi_adtf3175" / "wall.npz").read_bytes()
-    status, _, err = _cli([_real(""), tmp_path / "rec"], capsys)
+    status, _, err = _cli([src, tmp_path / "rec"], capsys)
     assert (
         status == 1
         and len(err) == 3

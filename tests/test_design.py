@@ -25,6 +25,10 @@ from tof_fpn_torch.design import (
 )
 
 ORDERS = range(5, 61)
+#: the orders the default run checks (both parities at the smallest, the default and the largest
+#: order); the others are slow tests (``python -m pytest -m slow``)
+QUICK_ORDERS = {5, 6, 20, 21, 59, 60}
+ORDER_PARAMS = [o if o in QUICK_ORDERS else pytest.param(o, marks=pytest.mark.slow) for o in ORDERS]
 RHOS = (0.025, 0.06, 0.1, 0.14, 1 / 6)
 
 
@@ -84,7 +88,7 @@ def notch_gains(taps: np.ndarray, notches) -> np.ndarray:
     return np.abs(np.exp(-1j * np.outer(notches, np.arange(taps.size))) @ taps)
 
 
-@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("order", ORDER_PARAMS)
 def test_design_is_minimax_optimal_with_exact_zeros(order):
     """Every order 5..60 (both parities) and rho in (0.02, 1/6]: zeros, symmetry, optimal ripple.
 

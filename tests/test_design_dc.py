@@ -12,10 +12,14 @@ from tof_fpn_torch import constants as K
 from tof_fpn_torch.design import RIPPLE_FLOOR, design_fpn, remez_linear_phase, zero_phase_response
 
 ORDERS = range(5, 61)
+#: the orders the default run checks (both parities at the smallest, the default and the largest
+#: order); the others are slow tests (``python -m pytest -m slow``)
+QUICK_ORDERS = {5, 6, 20, 21, 59, 60}
+ORDER_PARAMS = [o if o in QUICK_ORDERS else pytest.param(o, marks=pytest.mark.slow) for o in ORDERS]
 RHOS = (0.025, 0.06, 0.1, 0.14, 1 / 6)
 
 
-@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("order", ORDER_PARAMS)
 def test_unit_dc_design_is_optimal_under_the_constraint(order):
     """Every order 5..60 and rho: |H(0) - 1| <= 1e-9, zeros kept, and the ripple within 0.5 % of
     the LP optimum with the same equality H(0) = 1 (a lower bound of the true optimum)."""

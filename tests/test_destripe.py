@@ -4,12 +4,12 @@ invalid pixels, TorchScript, complex domain, errors."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import _destripe_ref as R
 import numpy as np
 import pytest
 import torch
+from conftest import REAL_DATA_DIR
 
 from tof_fpn_torch import constants as K
 from tof_fpn_torch.analysis.metrics import psnr
@@ -31,7 +31,6 @@ from tof_fpn_torch.sim import (
     synthetic_scene,
 )
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 F0 = K.CAMCUBE_MODULATION_FREQUENCY_HZ
 SCALE = K.SPEED_OF_LIGHT_AIR / (4 * math.pi * F0)  # metres per radian of phase
 
@@ -159,7 +158,7 @@ def test_never_hurts_on_stripe_free_scenes(size, kind):
 
 
 def _adi_depth() -> torch.Tensor:
-    path = REAL / "adi_adtf3175" / "wall_depth_u16le_512x512.bin"
+    path = REAL_DATA_DIR / "adi_adtf3175" / "wall_depth_u16le_512x512.bin"
     assert path.is_file(), f"the real ADI capture is missing: {path}"
     raw = np.fromfile(path, dtype="<u2").reshape(512, 512).astype(np.float64)
     return torch.from_numpy(raw)[None, None]

@@ -5,7 +5,7 @@ Small seeded recordings from the package's simulator with the baseline's physics
 bad input gives one clear error line and writes nothing; ``report.json`` has the issue's
 shape; a planted cyclic error and a planted column-delay pattern are named first; a null
 recording gives ``none``; the refitted ``model.json`` loads back as ``--baseline``; the ADI
-wall capture (``../shared/data/real``; missing: the test fails) shows a broadband column pattern.
+wall capture (``tests/data/real``; missing: the test fails) shows a broadband column pattern.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import REAL_DATA_DIR, real_capture
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.cli import main
@@ -141,6 +142,7 @@ def test_bad_input_api():
 # --- findings ------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_names_a_planted_cyclic_error_and_the_model_reloads(files, tmp_path, capsys):
     out = tmp_path / "out"
     rec, scene = files / "cyclic.npz", files / "scene.npz"
@@ -204,6 +206,7 @@ def test_planted_column_pattern_is_named_fpn_pattern():
     assert p["rms_columns_mm"] == pytest.approx(3.0, rel=0.3)
 
 
+@pytest.mark.slow
 def test_planted_saturation_is_named_saturation():
     """A full-well clip of every sample (the camera's own full well out of the way) on the
     brightest ~1.8 % of the pixels is named ``saturation``, not ``impulsive_pixels``: the
@@ -225,6 +228,7 @@ def test_planted_saturation_is_named_saturation():
     assert 0.5 * share < p["share_of_pixels_clipped"] < 2 * share
 
 
+@pytest.mark.slow
 def test_fully_clipped_pixels_are_named_saturation_with_their_level():
     """A full well below the darkest sample of ~1.8 % of the pixels (all N samples clipped; ~6 %
     clipped in some sample) is named ``saturation`` with its level within 10 %: the model clips
@@ -241,6 +245,7 @@ def test_fully_clipped_pixels_are_named_saturation_with_their_level():
     assert diag.report["effects"][0]["params"]["level_e"] == pytest.approx(level, rel=0.1)
 
 
+@pytest.mark.slow
 def test_planted_scene_relay_is_named_multipath_with_its_relayed_light():
     """Multipath with the scene's own geometry (``Multipath(scene_relay=...)``: 60 deg field,
     1 m near field, neither on the diagnosis' grid) is named ``multipath`` and the relayed /
@@ -258,6 +263,7 @@ def test_planted_scene_relay_is_named_multipath_with_its_relayed_light():
     assert got == pytest.approx(truth, rel=0.25)
 
 
+@pytest.mark.slow
 def test_planted_multipath_is_named_and_recovered():
     """A 1 % diffuse second return delayed by 2.5 m (``Multipath``) is named ``multipath`` with
     its strength and extra path recovered."""
@@ -270,6 +276,7 @@ def test_planted_multipath_is_named_and_recovered():
     assert diag.report["fit"]["after"]["heldout_nll"] < diag.report["fit"]["before"]["heldout_nll"]
 
 
+@pytest.mark.slow
 def test_null_recording_gives_none():
     rec, scene = _recording(seed=6)
     diag = diagnose(rec, scene, replicates=0)
@@ -279,22 +286,15 @@ def test_null_recording_gives_none():
 
 # --- real data -----------------------------------------------------------------------------------
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 ADI_WALL = ("adi_adtf3175/wall_depth_u16le_512x512.bin", "adi_adtf3175/wall_ir_u16le_512x512.bin")
 
 
-def _real(rel: str) -> Path:
-    path = REAL / rel
-    if not path.is_file():
-        pytest.fail(f"real capture missing: {path} (../shared/data/real beside the repository)")
-    return path
-
-
+@pytest.mark.slow
 def test_adi_wall_column_pattern_is_broadband_and_modelled():
     """One frame of the ADI wall (a 128 x 160 crop of its centre), scene estimated: the column
     pattern is found, its spectrum is broadband (not 2 pi / 3 / pi), and modelling it improves
     the held-out fit (the whole frame: docs/diagnosis.md)."""
-    depth, ir = tio.read_adi_depth_ir(_real(ADI_WALL[0]), _real(ADI_WALL[1]))
+    depth, ir = tio.read_adi_depth_ir(real_capture(ADI_WALL[0]), real_capture(ADI_WALL[1]))
     crop = (..., slice(192, 320), slice(176, 336))
     meta = {"modulation_frequency_hz": None, "integration_time_us": None, "n_phases": None}
     diag = diagnose(tio.Recording(depth[crop], ir[crop], meta), None, replicates=0)
@@ -311,6 +311,7 @@ def test_adi_wall_column_pattern_is_broadband_and_modelled():
     assert after["heldout_nll"] < before["heldout_nll"] - 100
 
 
+@pytest.mark.slow
 def test_readme_diagnose_command_works_as_written(tmp_path, monkeypatch, capsys):
     import re
     import shlex
@@ -330,13 +331,14 @@ def test_readme_diagnose_command_works_as_written(tmp_path, monkeypatch, capsys)
     assert (out / "report.md").is_file() and (out / "model.json").is_file()
 
 
+@pytest.mark.slow
 def test_cli_takes_a_cameras_own_file(tmp_path, capsys):
     """An ADI depth / IR pair as the camera writes it (uint16 mm and counts, the size in the
     name; a 64 x 64 crop of the wall capture) is diagnosed as it is, its IR file found beside
     it and the scene estimated from it (a plain array .npz is refused: the bad-input test)."""
     h, w = 64, 64
     for kind, src in zip(("depth", "ir"), ADI_WALL, strict=True):
-        full = np.fromfile(REAL / src, dtype="<u2").reshape(512, 512)
+        full = np.fromfile(REAL_DATA_DIR / src, dtype="<u2").reshape(512, 512)
         full[200 : 200 + h, 200 : 200 + w].copy().tofile(tmp_path / f"cap_{kind}_u16le_{h}x{w}.bin")
     out = tmp_path / "out"
     depth_file = tmp_path / f"cap_depth_u16le_{h}x{w}.bin"
@@ -350,6 +352,7 @@ def test_cli_takes_a_cameras_own_file(tmp_path, capsys):
     assert got["depth_pixels"] > 0.5 * h * w
 
 
+@pytest.mark.slow
 def test_a_single_frame_holds_the_conversion_gain():
     """One frame has no temporal spread: the shot-noise share of the noise cannot be told from
     the read noise, and the fit drifted along the conversion gain (to 1e32 e-/DN on the Azure

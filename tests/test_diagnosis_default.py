@@ -30,6 +30,7 @@ def default_recording():
     return recording_from_simulation(out, sim.camera), scene_from_sim(scene)
 
 
+@pytest.mark.slow
 def test_default_simulation_is_diagnosed_none(default_recording):
     rec, scene = default_recording
     diag = diagnose(rec, scene)
@@ -47,6 +48,7 @@ def test_default_simulation_is_diagnosed_none(default_recording):
     assert base.values["camera.conversion_gain"] == pytest.approx(25.0, rel=0.1)
 
 
+@pytest.mark.slow
 def test_unstated_clip_is_a_finding(default_recording):
     """The same samples without ``sim_camera`` in the meta: the clip is then physics the
     baseline lacks, and it is named."""

@@ -207,6 +207,7 @@ def test_range_series_delays_the_decoded_phase():
         CyclicError(range_harmonics=(2,), range_cos=(), range_sin=(0.0,))
 
 
+@pytest.mark.slow
 def test_cyclic_series_names_a_wiggle_of_another_shape():
     """A depth error periodic in the phase that no correlation harmonic of 4 samples makes (a
     triangle wave of period R / 2, added to the depths) is named ``cyclic_error``, modelled by
@@ -270,6 +271,7 @@ def test_frame_drift_moves_each_frame():
         TemporalDrift(frame_delays=(0.0,), frame_light=(-1.5,))
 
 
+@pytest.mark.slow
 def test_frame_member_names_a_drift_of_another_course():
     """A delay that jumps back and forth between frames (a random walk, not a warm-up curve),
     added to the depths, is named ``temporal_drift`` through its per-frame member; the null
@@ -291,6 +293,7 @@ def test_frame_member_names_a_drift_of_another_course():
     assert float(c) > 0.9  # 0.94 measured (per-frame estimates within about 1 mm)
 
 
+@pytest.mark.slow
 def test_knee_member_names_a_compression_of_another_shape():
     """Bright samples compressed by a tanh curve (not the catalogue's clip nor the member's
     softplus), the brightest tenth of the pixels well into it, are named ``saturation`` through
@@ -322,6 +325,7 @@ def test_knee_member_names_a_compression_of_another_shape():
     assert out.report["effects"][0]["terms"] == ["saturation_knee"]
 
 
+@pytest.mark.slow
 def test_source_member_names_a_glossy_patch():
     """One glossy patch of the scene relays its light to the points around it with a Gaussian
     lobe (not the catalogue's uniform or inverse-square relay, not the member's form factor),

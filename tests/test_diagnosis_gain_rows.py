@@ -5,6 +5,7 @@ catalogue's random gain per pixel) is named ``pixel_gain`` through it."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from tof_fpn_torch.diagnosis.terms.pixel_gain_rows import row_gains
@@ -58,6 +59,7 @@ def test_row_gains_leave_a_smooth_change_along_the_rows():
     assert float(g[40]) < -0.025 and int(g.argmin()) == 40
 
 
+@pytest.mark.slow
 def test_weak_rows_and_clusters_are_named_pixel_gain_through_the_member():
     """Two weak rows and four small clusters at 4 % less light (no random gain per pixel) are
     named ``pixel_gain`` alone, through the row member, whose largest row loss is the planted

@@ -59,6 +59,7 @@ def test_every_frame_size_has_fitting_and_held_out_pixels(shape):
         assert side == SPLIT_BLOCK
 
 
+@pytest.mark.slow
 def test_a_cyclic_error_on_the_smallest_frame_is_named():
     """8 x 8 px, 6 frames: with one 8-px block there were no held-out pixels and nothing could be
     named; the shrunk blocks give the held-out half back."""
@@ -68,6 +69,7 @@ def test_a_cyclic_error_on_the_smallest_frame_is_named():
     assert diag.report["verdict"][0] == "cyclic_error", diag.report["effects"]
 
 
+@pytest.mark.slow
 def test_a_null_recording_of_odd_size_gives_none():
     rec, scene = _recording(9, 13, frames=6)
     diag = diagnose(rec, scene, replicates=0)

@@ -86,6 +86,7 @@ def test_phase_jitter_with_dof_delays_by_a_scaled_student_t():
         PhaseJitter(0.01, dof=2.0)
 
 
+@pytest.mark.slow
 def test_planted_heavy_tailed_jitter_is_named_noise_floor_with_its_tails():
     """A Student-t jitter (3 degrees of freedom, 25 mm sd) is named ``noise_floor`` alone (not
     impulsive pixels: its readings are a few sd out, in every pixel) through the heavy-tailed

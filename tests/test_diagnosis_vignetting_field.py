@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from tof_fpn_torch.diagnosis.terms.vignetting_field import RAMPS, SECTORS, loss_basis
@@ -36,6 +37,7 @@ def test_every_basis_function_rises_along_every_ray():
     assert torch.equal(loss_basis(h, w, pix), basis)
 
 
+@pytest.mark.slow
 def test_dark_corner_sector_is_named_vignetting_through_the_member():
     """A mechanical vignette (a 40 deg sector of one corner losing 25 % of its light beyond 0.7
     half-diagonals; neither the catalogue's round lens nor the member's basis) is named

@@ -19,7 +19,7 @@ at its top lists them, and they are made in its folder first (``SAMPLES``):
 * ``wall_frames``: eight frames of flat walls at 1.5 m and 2.5 m from the same simulated camera
   (read-out FPN included), for ``tof-fpn calibrate``;
 * ``desk_recording.mkv``, ``adi``: copies of the real Azure Kinect recording and of the ADI
-  ADTF3175 wall files of ``../shared/data/real`` (missing captures fail, as in ``conftest.py``).
+  ADTF3175 wall files of ``tests/data/real`` (missing captures fail, as in ``conftest.py``).
 
 The benchmark commands (``docs/benchmarks.md`` and every ``python benchmarks/...`` or
 ``python examples/...`` line) take minutes to hours and are not run here; their scripts must
@@ -39,16 +39,18 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import real_capture
 
 from tof_fpn_torch.clean import steps as clean_steps
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-REAL = ROOT.parent / "shared" / "data" / "real"
 
 #: pages whose blocks are not run: the lead's architecture page (no commands) and the benchmarks
 #: (hours of runs; their scripts are checked by test_benchmark_scripts_exist)
 NOT_RUN = {"architecture.md", "benchmarks.md"}
+#: pages run only with the slow tests (whole diagnoses, folders cleaned): ``-m slow``
+SLOW = {"diagnosis.md", "clean.md"}
 
 #: (command, seconds) of every command run, for the slowest-commands report
 TIMES: list[tuple[str, float]] = []
@@ -126,21 +128,14 @@ def _wall_frames(folder: Path) -> None:
             )
 
 
-def _real(rel: str) -> Path:
-    path = REAL / rel
-    if not path.is_file():
-        pytest.fail(f"real capture missing: {path} (../shared/data/real beside the repository)")
-    return path
-
-
 def _mkv(folder: Path) -> None:
-    shutil.copyfile(_real("azure_kinect/desk_recording.mkv"), folder / "desk_recording.mkv")
+    shutil.copyfile(real_capture("azure_kinect/desk_recording.mkv"), folder / "desk_recording.mkv")
 
 
 def _adi(folder: Path) -> None:
     os.makedirs(folder / "adi", exist_ok=True)
     for name in ("wall_depth_u16le_512x512.bin", "wall_ir_u16le_512x512.bin"):
-        shutil.copyfile(_real(f"adi_adtf3175/{name}"), folder / "adi" / name)
+        shutil.copyfile(real_capture(f"adi_adtf3175/{name}"), folder / "adi" / name)
 
 
 SAMPLES = {
@@ -179,7 +174,10 @@ def _run_words(line: str, words: list[str], capsys) -> None:
     assert proc.returncode == 0, f"{line!r} exited with {proc.returncode}:\n{proc.stderr}"
 
 
-@pytest.mark.parametrize("page", guide_pages())
+@pytest.mark.parametrize(
+    "page",
+    [pytest.param(p, marks=pytest.mark.slow) if p in SLOW else p for p in guide_pages()],
+)
 def test_page_runs_as_written(page, tmp_path, monkeypatch, capsys):
     text = (DOCS / page).read_text()
     monkeypatch.chdir(tmp_path)

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # builds the whole site: `python -m pytest -m slow` runs it
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "tof_fpn_torch"
 

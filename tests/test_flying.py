@@ -178,6 +178,7 @@ def test_torchscript_equals_eager(action):
             torch.testing.assert_close(got_rec[key], want_rec[key], atol=1e-5, rtol=0)
 
 
+@pytest.mark.slow
 def test_onnx_equals_eager(tmp_path):
     """Through the package's ``export_onnx`` (the class asks for the TorchScript-based exporter:
     seconds; ``torch.export`` took minutes on the unrolled loops), dynamic sizes."""

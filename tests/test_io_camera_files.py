@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from _bags import frames, write_realsense, write_ros2
+from conftest import real_capture
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.io.camera_files import (
@@ -23,15 +24,6 @@ from tof_fpn_torch.io.camera_files import (
 from tof_fpn_torch.io.captures import ADI_INTERLEAVED_DTYPE
 from tof_fpn_torch.io.encode import encode_depth
 from tof_fpn_torch.io.stored import frame_set_tensors, read_frame_sets, write_like
-
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
-
-
-def _real(rel: str) -> Path:
-    path = REAL / rel
-    if not path.exists():
-        pytest.fail(f"real capture missing: {path} (../shared/data/real beside the repository)")
-    return path
 
 
 def _write_back(src, amp=None, change=None, **kw):
@@ -105,7 +97,7 @@ def test_real_adi_files_as_stored(tmp_path):
     names = ("wall_depth_u16le_512x512.bin", "wall_ir_u16le_512x512.bin")
     office = "office_mode3_interleaved_512x512.bin"
     for name in (*names, office):  # copies: the shared folder is read-only
-        (tmp_path / name).write_bytes(_real(f"adi_adtf3175/{name}").read_bytes())
+        (tmp_path / name).write_bytes(real_capture(f"adi_adtf3175/{name}").read_bytes())
     wall, ir_path = tmp_path / names[0], tmp_path / names[1]
     (fs,), dst = _write_back(wall, ir_path)
     depth, ir = tio.read_adi_depth_ir(wall, ir_path)
@@ -120,7 +112,7 @@ def test_real_adi_files_as_stored(tmp_path):
 
 
 def test_real_mkv_is_a_frame_set_and_comes_back_as_a_recording(tmp_path):
-    mkv = _real("azure_kinect/desk_recording.mkv")
+    mkv = real_capture("azure_kinect/desk_recording.mkv")
     rec = tio.read_azure_kinect_mkv(mkv)
     (fs,) = read_frame_sets(mkv, height=1, width=1, depth_scale=0.5)  # neither applies to .mkv
     assert fs.camera == "azure_kinect" and fs.depth.dtype == np.float32 and fs.depth_scale == 1.0

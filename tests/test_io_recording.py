@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import REAL_DATA_DIR
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.io import FormatError, Recording, SceneData
 from tof_fpn_torch.runtime import valid_mask
 from tof_fpn_torch.sim import Camera, Scene, Simulation, synthetic_scene
 
-REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 META = {"modulation_frequency_hz": 20e6, "integration_time_us": 100.0, "n_phases": 4}
 
 
@@ -85,7 +85,7 @@ def test_recording_file_is_the_documented_contract(sim_run, tmp_path):
 
 
 def test_real_captures_go_through_the_same_code(tmp_path):
-    adi = REAL / "adi_adtf3175"
+    adi = REAL_DATA_DIR / "adi_adtf3175"
     depth, ir = tio.read_adi_depth_ir(
         adi / "wall_depth_u16le_512x512.bin", adi / "wall_ir_u16le_512x512.bin"
     )
@@ -96,7 +96,7 @@ def test_real_captures_go_through_the_same_code(tmp_path):
     _same(back.depth, depth)
     _same(back.amplitude, ir)
     assert back.raw is None and back.timestamps_s is None and back.meta == rec.meta
-    kinect = tio.read_azure_kinect_mkv(REAL / "azure_kinect" / "desk_recording.mkv")
+    kinect = tio.read_azure_kinect_mkv(REAL_DATA_DIR / "azure_kinect" / "desk_recording.mkv")
     tio.write_recording(tmp_path / "k.npz", kinect)
     back = tio.read_recording(tmp_path / "k.npz")
     _same(back.depth, kinect.depth)

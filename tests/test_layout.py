@@ -3,9 +3,10 @@
 - which package may import which (the run-time layers import torch, kornia, the standard library
   and the constants only; nothing imports upward);
 - importing the run-time package loads no SciPy, matplotlib or offline layer;
-- no file of the package over 400 lines, no function over 80 (unless its docstring says why it
-  "cannot be split");
-- no number of the paper written anywhere but ``tof_fpn_torch/constants.py``.
+- no number of the paper written anywhere but ``tof_fpn_torch/constants.py``;
+- files over 400 lines and functions over 80 (unless the docstring says why it "cannot be split")
+  are reported as a warning (:class:`LayoutWarning`), not failed: files are split by concept, not
+  by count, and the list says where a split may be due.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import ast
 import math
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -176,12 +178,6 @@ def test_importing_the_runtime_loads_no_offline_code():
     assert out.stdout.strip() == "[]", out.stdout
 
 
-@pytest.mark.parametrize("path", _sources(), ids=lambda p: str(p.relative_to(PACKAGE)))
-def test_no_file_over_400_lines(path):
-    n = len(path.read_text().splitlines())
-    assert n <= 400, f"{path.relative_to(PACKAGE)} has {n} lines (at most 400)"
-
-
 def _paper_numbers() -> tuple[dict[float, str], dict[float, str]]:
     """``(distinctive, defaults)``: the paper's numbers, flagged wherever they appear in code, and
     the package defaults whose values are common (0.2, 20, ...), flagged where they are written as
@@ -278,11 +274,23 @@ def test_the_literal_scan_sees_a_copy(tmp_path):
     assert sorted(d for v, _, _, d in found if v == 0.14) == [False, True]  # body / default
 
 
-#: functions over 80 lines in files that other people were changing when the check was added (the
-#: diagnosis, the experiments, ``tof-fpn clean``'s run and ``tof-fpn reproduce``): listed (the
-#: check is an expected failure naming them), not failed, until those changes land; remove an
-#: entry once its function is split
+#: the length caps: longer files and functions are reported (a warning), not failed
+MAX_FILE_LINES = 400
 MAX_FUNCTION_LINES = 80
+
+
+class LayoutWarning(UserWarning):
+    """A file or function over its length cap: worth a look, split by concept if one is due."""
+
+
+def _long_files(paths: list[Path], root: Path = PACKAGE) -> dict[str, int]:
+    """``"file" -> lines`` for the files over :data:`MAX_FILE_LINES` lines."""
+    out = {}
+    for path in paths:
+        n = len(path.read_text().splitlines())
+        if n > MAX_FILE_LINES:
+            out[path.relative_to(root).as_posix()] = n
+    return out
 
 
 def _long_functions(path: Path, root: Path = PACKAGE) -> dict[str, int]:
@@ -301,12 +309,40 @@ def _long_functions(path: Path, root: Path = PACKAGE) -> dict[str, int]:
     return out
 
 
-def test_no_function_over_80_lines():
-    long: dict[str, int] = {}
-    for path in _sources():
-        long.update(_long_functions(path))
-    new = sorted(f"{k} ({v} lines)" for k, v in long.items())
-    assert not new, "split these functions (or say why they cannot be split):\n" + "\n".join(new)
+def _warn_long(paths: list[Path], root: Path = PACKAGE) -> None:
+    """One :class:`LayoutWarning` listing the files and functions over their caps, if any."""
+    files = _long_files(paths, root)
+    functions: dict[str, int] = {}
+    for path in paths:
+        functions.update(_long_functions(path, root))
+    lines = [f"{k} has {v} lines (cap {MAX_FILE_LINES})" for k, v in sorted(files.items())]
+    lines += [f"{k} has {v} lines (cap {MAX_FUNCTION_LINES})" for k, v in sorted(functions.items())]
+    if lines:
+        warnings.warn(
+            LayoutWarning(
+                "over the length caps (split by concept if one is due):\n" + "\n".join(lines)
+            ),
+            stacklevel=2,
+        )
+
+
+def test_long_files_and_functions_are_reported_not_failed():
+    """The caps are a warning in the run's summary, never a failure."""
+    _warn_long(_sources())
+
+
+def test_the_length_report_sees_a_long_file(tmp_path):
+    probe = tmp_path / "probe.py"
+    probe.write_text("x = 1\n" * (MAX_FILE_LINES + 1))
+    (tmp_path / "short.py").write_text("x = 1\n" * MAX_FILE_LINES)
+    paths = sorted(tmp_path.glob("*.py"))
+    assert _long_files(paths, tmp_path) == {"probe.py": MAX_FILE_LINES + 1}
+    with pytest.warns(LayoutWarning, match="probe.py has 401 lines \\(cap 400\\)"):
+        _warn_long(paths, tmp_path)
+    probe.unlink()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_long(sorted(tmp_path.glob("*.py")), tmp_path)  # nothing over: no warning
 
 
 def test_the_function_length_check_sees_one(tmp_path):

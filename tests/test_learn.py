@@ -277,6 +277,7 @@ def test_training_keeps_the_zeros_and_changes_the_model():
     assert float(tr.model.network.net[-1].weight.abs().max()) > 0
 
 
+@pytest.mark.slow
 def test_whole_model_exports_to_torchscript_and_onnx_within_1e5_keeping_invalid(tmp_path):
     model = _perturbed(_trained()[0].model)
     depth, amp = _frames(h=24, w=40)
@@ -331,7 +332,7 @@ def test_checkpoint_round_trip_and_refusals(tmp_path):
         save_model(tmp_path / "x.pt", model, "nope", settings, THRESHOLDS)
 
 
-@pytest.mark.parametrize("fmt", ["torchscript", "onnx"])
+@pytest.mark.parametrize("fmt", ["torchscript", pytest.param("onnx", marks=pytest.mark.slow)])
 def test_cli_exports_a_trained_model(tmp_path, capsys, fmt):
     tr, settings = _trained()
     ckpt = save_model(

@@ -1,4 +1,4 @@
-"""Every run-time stage on real ToF captures (ADI ADTF3175, ``../shared/data/real``).
+"""Every run-time stage on real ToF captures (ADI ADTF3175, ``tests/data/real``).
 
 Inputs: the wall frame (depth mm + IR as amplitude) and the office frame (depth mm + active
 brightness as amplitude, 6 % invalid) as one large batch of two 512 x 512 frames, and crops of

@@ -116,6 +116,7 @@ def test_bin_stripe_power_against_numpy():
         assert got == pytest.approx(ref, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_fit_fusion_matches_a_brute_force_search():
     """The closed-form floor per threshold pair against a dense NumPy search over the floor."""
     rng = np.random.default_rng(0)

@@ -7,8 +7,10 @@ give at most one false detection and at least 27 correct detections at amplitude
 from __future__ import annotations
 
 import bench_detection as bench
+import pytest
 
 
+@pytest.mark.slow
 def test_false_detections_and_detection_rate_on_random_sizes():
     res = bench.run(30, 1.5, seed=1)
     assert res["false_detection_rate"] <= 1 / 30, res["failures"]

@@ -290,6 +290,7 @@ def test_errors(call, match):
         call()
 
 
+@pytest.mark.slow
 def test_cli_reproduce_table1_quick(tmp_path, capsys):
     out = tmp_path / "t1"
     assert reproduce.main(["table1", "--quick", "--out", str(out), "--no-progress"]) == 0

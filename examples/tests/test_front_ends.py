@@ -28,6 +28,7 @@ def test_identity_model_evaluates_as_its_input():
     assert 0.0 < ev["low_share"] <= 1.0
 
 
+@pytest.mark.slow
 def test_quick_example_runs_end_to_end(tmp_path):
     out = tmp_path / "learn"
     proc = subprocess.run(
