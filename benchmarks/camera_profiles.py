@@ -21,7 +21,7 @@ from real_captures import REAL_DATA_DIR
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.build import fusion_from_noise
 from tof_fpn_torch.denoise import estimate_noise_k
-from tof_fpn_torch.experiments.common import make_synthetic_data
+from tof_fpn_torch.paper_data import make_synthetic_data
 from tof_fpn_torch.runtime import valid_mask
 
 REAL = REAL_DATA_DIR
