@@ -72,8 +72,6 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # the package of this checkout, not an installed copy
-    sys.path.insert(0, str(ROOT))
 REAL = REAL_DATA_DIR
 FORMAT = 1  # of behaviour.json
 
