@@ -8,7 +8,7 @@ the summary of every later run include it.
 
 from __future__ import annotations
 
-from .base import Context, Option, Step, TableOption
+from .base import Context, Option, Step, TableOption, options_of
 from .denoise import STEP as DENOISE
 from .files import FILE_OPTIONS
 from .flying import STEP as FLYING
@@ -22,6 +22,7 @@ __all__ = [
     "Option",
     "Step",
     "TableOption",
+    "options_of",
     "options",
     "register",
     "steps",

@@ -20,7 +20,7 @@ from torch import nn
 
 from ...runtime.stage import Setting
 
-__all__ = ["Context", "Option", "Step", "TableOption"]
+__all__ = ["Context", "Option", "Step", "TableOption", "options_of"]
 
 SCOPES = ("frame", "sequence")
 
@@ -56,6 +56,28 @@ class Option:
         if self.flag is not None:
             return self.flag
         return self.name.replace("_", "-")
+
+
+def options_of(stage: type, table: str, prefix: str, names: tuple[str, ...]) -> tuple[Option, ...]:
+    """The options of a step taken from its stage's declared settings (``stage.settings``,
+    :class:`~tof_fpn_torch.runtime.stage.Setting`): each named setting becomes the option
+    ``<prefix><name>``, TOML key ``[table] <name>``, flag ``--<prefix><name>`` (``_`` as ``-``),
+    with the stage's type, default, range and help: declared once, in the stage."""
+    declared = {s.name: s for s in stage.settings}
+    missing = [n for n in names if n not in declared]
+    if missing:
+        raise ValueError(
+            f"{stage.__name__} declares no setting {missing}; it has {sorted(declared)}"
+        )
+    out = []
+    for n in names:
+        s = declared[n]
+        renamed = Setting(
+            prefix + n, s.kind, s.default, s.help, s.choices, s.low, s.high, s.open_low,
+            s.open_high, s.finite,
+        )  # fmt: skip
+        out.append(Option(renamed, table, n))
+    return tuple(out)
 
 
 @dataclass(frozen=True)

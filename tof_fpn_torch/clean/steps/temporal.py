@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from torch import nn
 
-from ... import constants as K
+from ...runtime import TemporalSequence
 from ...runtime.stage import Setting
 from ..temporal import apply_temporal, temporal_lines, temporal_module
-from .base import Context, Option, Step
+from .base import Context, Option, Step, options_of
 
 __all__ = ["STEP"]
 
@@ -51,43 +51,7 @@ STEP = Step(
             "pipeline",
             "temporal",
         ),
-        Option(
-            Setting(
-                "temporal_alpha",
-                float,
-                K.TEMPORAL_ALPHA,
-                "EMA weight of the new frame",
-                low=0.0,
-                high=1.0,
-                open_low=True,
-            ),
-            "temporal",
-            "alpha",
-        ),
-        Option(
-            Setting(
-                "temporal_guard",
-                float,
-                K.TEMPORAL_GUARD,
-                "motion guard, sd of the innovation (inf: no guard)",
-                low=0.0,
-                open_low=True,
-                finite=False,
-            ),
-            "temporal",
-            "guard",
-        ),
-        Option(
-            Setting(
-                "temporal_persistence",
-                int,
-                0,
-                "frames an invalid pixel shows its last estimate",
-                low=0,
-            ),
-            "temporal",
-            "persistence",
-        ),
+        *options_of(TemporalSequence, "temporal", "temporal_", ("alpha", "guard", "persistence")),
     ),
     build=_build,
     describe=_describe,
