@@ -11,8 +11,8 @@ follows the ToF literature:
 
 - Lange & Seitz, "Solid-state time-of-flight range camera", IEEE J. Quantum Electron. 37(3),
   2001: phase ``phi = 4 pi f d / c`` of the reflected modulated light, with shot-noise limited
-  range error ``sigma_d = c / (4 pi f) * sqrt(A + B) / (sqrt(2) A)`` (signal amplitude ``A``,
-  background ``B``; ``~ 1 / A`` where the background dominates, the low-sensing case).
+  range error ``sigma_d ~ c / (4 pi f) * sqrt(A + B) / A`` (signal amplitude ``A``, background
+  ``B``; ``~ 1 / A`` where the background dominates, the low-sensing case).
 - Hansard, Lee, Choi & Horaud, "Time-of-Flight Cameras: Principles, Methods and Applications",
   Springer 2013: amplitude ``A ~ albedo cos(incidence) / d^2``; mixed ("flying") pixels, whose
   measurement is the phase of the *sum* of the complex returns that fall on one pixel.
@@ -22,6 +22,19 @@ follows the ToF literature:
 - Foix, Alenya & Torras, "Lock-in time-of-flight (ToF) cameras: a survey", IEEE Sensors J.
   11(9), 2011: the error sources (noise, saturation, low-signal invalidation, mixed pixels,
   fixed-pattern noise).
+
+The camera of a folder (drawn from the seed): modulation frequency 15 or 20 MHz (unambiguous
+range 10 / 7.5 m; returns beyond 95 % of it are dropped), horizontal field of view 55-75 degrees,
+one exposure for all frames, set so that the first frame's median amplitude is 40-220 counts
+(80 % of cameras; the others 300-1200), background ``B`` 1-4 times that, depth noise
+``sigma_d = k sqrt(A + B) / A`` with ``k`` giving 1.2-4.5 mm at that median (so 1-10 mm over
+most pixels, more in the darkest), amplitude noise ``sigma_d / (c / (4 pi f)) * A`` (the same
+phasor noise), amplitude PRNU 1 % (EMVA 1288). A pixel is invalid (depth 0) where its measured
+amplitude is below ``a_min`` (12-25 counts), where it saturates (``A >= a_sat`` = 4095, amplitude
+stored as ``a_sat``) or where its ray has no return. Mixed pixels: at depth edges each pixel is
+sampled 3 x 3 times and measures the phase of the mean phasor; a pixel whose measured distance
+moves more than 3 mm from its centre's is flagged ``flying`` (it stays valid, as in real cameras).
+Depth is rounded to mm, amplitude to counts.
 
 Fixed-pattern kinds (:data:`PATTERNS`), each zero-mean and scaled to a stated RMS (``pattern_rms``
 in the truth):
@@ -560,7 +573,8 @@ def make_folder(
 
     The scene depends on (``seed``, ``scene_family``), the pattern on (``seed``,
     ``pattern_kind``), so one seed gives the same scenes under every pattern kind. Frame size:
-    ``height`` x ``width`` if given, else one of :data:`SIZES` drawn from the seed."""
+    ``height`` x ``width`` if given, else one of :data:`SIZES` drawn from (``seed``,
+    ``scene_family``)."""
     if scene_family not in FAMILIES:
         raise ValueError(f"unknown scene family {scene_family!r}; known: {list(FAMILIES)}")
     if pattern_kind not in PATTERNS:
@@ -568,18 +582,15 @@ def make_folder(
     if n_frames < 1:
         raise ValueError(f"n_frames must be >= 1, got {n_frames}")
     cam_rng = _rng(seed, "camera")
-    if height is None or width is None:
-        h0, w0 = SIZES[int(cam_rng.integers(0, len(SIZES)))]
-        height, width = height or h0, width or w0
-    else:
-        cam_rng.integers(0, len(SIZES))
+    h0, w0 = SIZES[int(_rng(seed, "size", scene_family).integers(0, len(SIZES)))]
+    height, width = height or h0, width or w0
     h, w = int(height), int(width)
     f_mod = float(cam_rng.choice([15e6, 20e6, 20e6]))  # CamCube-class: 20 MHz, 7.5 m
     m_per_rad = C_LIGHT / (4 * np.pi * f_mod)
     cam = _Camera(h, w, np.radians(cam_rng.uniform(55, 75)))
     bright = cam_rng.random() < 0.2
     a_med = cam_rng.uniform(300, 1200) if bright else cam_rng.uniform(40, 220)
-    sd_med = cam_rng.uniform(1.5e-3, 6e-3)  # depth noise sd at the median amplitude
+    sd_med = cam_rng.uniform(1.2e-3, 4.5e-3)  # depth noise sd at the median amplitude
     background = a_med * cam_rng.uniform(1.0, 4.0)  # ambient + dark signal, counts
     a_min = cam_rng.uniform(12, 25)
     a_sat = 4095.0
