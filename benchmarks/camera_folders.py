@@ -74,10 +74,10 @@ Truth (returned by :func:`make_folder`, saved as ``out_dir/truth.npz`` beside th
   in range); ``amplitude`` (T, H, W) noise-free amplitude ``A`` in counts; ``sd`` (T, H, W) depth
   noise sd in metres; ``ray_norm`` (H, W) the length of each pixel's ray per metre of depth
   (radial distance = depth x ray_norm, phase ``phi = 4 pi f_mod depth ray_norm / c``);
-- ``pattern`` (H, W) the fixed pattern in metres (for ``complex_offset``: its depth effect at
-  ``A_ref`` and phase 0); ``pattern_frames`` (T, H, W) the pattern's actual depth effect in each
-  frame (equal to ``pattern`` in every frame for the additive kinds); ``offset`` (H, W) complex
-  ``c`` (zero for the other kinds);
+- ``pattern`` (H, W) the fixed pattern in metres (for the complex kinds, :data:`COMPLEX_KINDS`:
+  its effect on the radial distance at ``A_ref`` and phase 0); ``pattern_frames`` (T, H, W) the
+  pattern's actual depth effect in each frame (equal to ``pattern`` in every frame for the
+  additive kinds); ``offset`` (H, W) complex ``c`` in counts (zero for the additive kinds);
 - ``observed`` (T, H, W) the measured depth in metres before the rounding to mm (NaN invalid),
   ``noise`` (T, H, W) its noise realisation, ``valid`` and ``flying`` (T, H, W) bool masks;
 - scalars: ``pattern_rms``, ``f_mod``, ``a_ref``, ``a_min``, ``a_sat``, ``background``, strings
