@@ -207,7 +207,8 @@ def summarise(records: list[dict], stages_off: bool = False) -> list[str]:
         ]
     else:
         lines.append(
-            f"changed {changed} of {len(reps)} file(s); stripes found in {len(found)} (a pattern {common})"
+            f"changed {changed} of {len(reps)} file(s); stripes found in {len(found)} "
+            f"(a pattern {common})"
         )
         if left:
             lines.append(

@@ -15,8 +15,8 @@ Failures are per file: a file that cannot be read, decoded, computed or written 
 removed); the other files of the group go on.
 
 Frames no stage can work on pass through as they are: frames without a valid pixel (counted in
-the record's ``empty_frames``) and frames one pixel wide or high (:func:`~.measure.too_thin`; the record's
-``note`` says so, :data:`THIN_NOTE`).
+the record's ``empty_frames``) and frames one pixel wide or high (:func:`~.measure.too_thin`;
+the record's ``note`` says so, :data:`THIN_NOTE`).
 """
 
 from __future__ import annotations
@@ -131,8 +131,8 @@ def read_jobs(jobs: list[Job], config: CleanConfig, limit: int | None = None):
     readable frame's size, at most ``limit``: (N, 1, H, W) metres and camera units (frames with no
     valid pixel left out), and the first camera a file names (None if none does). What the
     data-driven stages and ``tof-fpn calibrate`` measure; frames one pixel wide or high
-    (:func:`~.measure.too_thin`) are left out too. :class:`NoFramesError` (a ``ValueError``) when there is
-    none, with every file's reason."""
+    (:func:`~.measure.too_thin`) are left out too. :class:`NoFramesError` (a ``ValueError``)
+    when there is none, with every file's reason."""
     depth, amplitude, camera = [], [], None
     failures: list[tuple[str, str]] = []
     for job in jobs:
@@ -169,7 +169,7 @@ def _unusable(item: Loaded) -> str:
         return f"{'x'.join(map(str, shapes[0]))} frames, one pixel wide: nothing to measure on"
     if not shapes or all(d.shape[0] == 0 for d, _ in item.tensors or []):
         return "no frame"
-    return "no frame with a valid pixel (of the first usable frame's size)"
+    return "no frame with a valid pixel"
 
 
 def _frame_records(records: dict, i: int) -> dict:
