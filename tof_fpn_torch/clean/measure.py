@@ -15,12 +15,16 @@ input and from the output *as stored*, so integer rounding counts):
 * ``gate``: the notch stage's per-frame gate (mean, and how many frames it opened for), where
   there is a notch;
 * ``lowpass_change_mm``: the largest RMS change of the 15 x 15 low-passed depth
-  (:func:`~tof_fpn_torch.analysis.lowpass_change`): how far the scene itself moved;
+  (:func:`~tof_fpn_torch.analysis.lowpass_change`) over the pixels valid in both input and
+  output (a stage may invalidate pixels): how far the scene itself moved;
 * ``changed``: the share of valid pixels whose stored value changed;
 * ``flying``: with the flying-pixel stage, the pixels it flagged and the valid pixels it saw, over
   all frames (``flagged``, ``valid``, ``share``), None without it.
 
-:func:`summarise` condenses the records of a run into the lines the command prints.
+A value that is undefined (no valid pixel to measure on; the stripe measure of a frame one pixel
+wide or high, :func:`too_thin`) is None, JSON ``null``: the record never holds NaN
+(:func:`finite_values`). :func:`summarise` condenses the records of a run into the lines the
+command prints.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ from ..io.stored import FrameSet, frame_set_tensors
 from ..runtime import valid_mask
 from .steps import steps
 
-__all__ = ["REPORT_FRAMES", "STRIPE_Z", "file_report", "summarise"]
+__all__ = ["REPORT_FRAMES", "STRIPE_Z", "file_report", "finite_values", "summarise", "too_thin"]
 
 #: frames measured per frame set (evenly spaced)
 REPORT_FRAMES = 16
@@ -46,13 +50,37 @@ REPORT_FRAMES = 16
 STRIPE_Z = 4.0
 _ORIENTATIONS = {"columns": False, "rows": True}
 MIN_STRIPE = K.GATE_MIN_STRIPE
+_ENERGY_KEYS = ("before_mm2", "after_mm2", "z")
+
+
+def too_thin(shape) -> bool:
+    """Whether frames of ``shape`` (``(..., H, W)``) are one pixel wide or high: nothing to
+    measure a stripe on (it needs two halves and a neighbourhood), and no stage of ``tof-fpn
+    clean`` runs on them (they are copied as they are)."""
+    return min(int(shape[-2]), int(shape[-1])) < 2
+
+
+def finite_values(value):
+    """``value`` (dicts, lists, numbers) with every NaN or infinite float replaced by None, so
+    that it is valid JSON (``null`` where a measure is undefined)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: finite_values(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_values(v) for v in value]
+    return value
 
 
 def _energy(before: torch.Tensor, after: torch.Tensor) -> dict:
-    """Stripe energy before / after (mm^2) and the input pattern's significance, per orientation."""
+    """Stripe energy before / after (mm^2) and the input pattern's significance, per orientation
+    (None where the frame has fewer than two rows to split, resp. columns)."""
     out = {}
     for name, transpose in _ORIENTATIONS.items():
         b, a = (before, after) if not transpose else (before.mT, after.mT)
+        if too_thin(b.shape):
+            out[name] = dict.fromkeys(_ENERGY_KEYS)
+            continue
         quiet = quiet_mask(b)
         eb, ea = column_stripe_energy(b, quiet), column_stripe_energy(a, quiet)
         n = float(eb.columns[0])
@@ -68,18 +96,30 @@ def _energy(before: torch.Tensor, after: torch.Tensor) -> dict:
 def _frame(before: torch.Tensor, after: torch.Tensor) -> dict:
     valid = valid_mask(before)
     x = torch.where(valid, before, 0.0).double()
-    noise = float(estimate_sigma(x, valid=valid).mean()) if bool(valid.any()) else 0.0
+    noise = None
+    if bool(valid.any()) and not too_thin(before.shape):
+        noise = 1e3 * float(estimate_sigma(x, valid=valid).mean())
     same = (before == after) | (before.isnan() & after.isnan())
+    both = valid & valid_mask(after)  # a stage may invalidate pixels (--flying invalidate)
+    moved = None
+    if bool(both.any()):
+        nan = torch.full_like(before, float("nan"))
+        b, a = torch.where(both, before, nan), torch.where(both, after, nan)
+        moved = 1e3 * float(lowpass_change(b, a))
     return {
-        "noise_mm": 1e3 * noise,
+        "noise_mm": noise,
         "stripes": _energy(before, after),
-        "lowpass_change_mm": 1e3 * float(lowpass_change(before, after)),
+        "lowpass_change_mm": moved,
         "changed": float((~same & valid).sum()) / max(int(valid.sum()), 1),
     }
 
 
-def _finite_mean(values: list[float]) -> float | None:
-    v = [x for x in values if math.isfinite(x)]
+def _finite(values: list) -> list[float]:
+    return [x for x in values if x is not None and math.isfinite(x)]
+
+
+def _finite_mean(values: list) -> float | None:
+    v = _finite(values)
     return sum(v) / len(v) if v else None
 
 
@@ -99,27 +139,27 @@ def file_report(sets: list[FrameSet], encoded: dict) -> dict:
     stripes = {}
     for name in _ORIENTATIONS:
         stripes[name] = {
-            k: _finite_mean([f["stripes"][name][k] for f in frames])
-            for k in ("before_mm2", "after_mm2", "z")
+            k: _finite_mean([f["stripes"][name][k] for f in frames]) for k in _ENERGY_KEYS
         }
-    noise = _finite_mean([f["noise_mm"] for f in frames]) or 0.0
+    noise = _finite_mean([f["noise_mm"] for f in frames])
     found = any(_found(s, noise) for s in stripes.values())
     rec = {
         "found": found,
         "noise_mm": noise,
         "stripes": stripes,
-        "lowpass_change_mm": max((f["lowpass_change_mm"] for f in frames), default=0.0),
+        "lowpass_change_mm": max(_finite([f["lowpass_change_mm"] for f in frames]), default=None),
         "changed": _finite_mean([f["changed"] for f in frames]) or 0.0,
         "measured_frames": len(frames),
     }
-    return rec
+    return finite_values(rec)
 
 
 def _found(s: dict, noise_mm: float) -> bool:
     """A significant pattern (``z >= STRIPE_Z``) of at least the gate's floor in amplitude
     (``sqrt(E) >= GATE_MIN_STRIPE`` times the per-pixel noise)."""
     energy = s["before_mm2"] or 0.0
-    return (s["z"] or 0.0) >= STRIPE_Z and energy > 0 and energy >= (MIN_STRIPE * noise_mm) ** 2
+    floor = (MIN_STRIPE * (noise_mm or 0.0)) ** 2
+    return (s["z"] or 0.0) >= STRIPE_Z and energy > 0 and energy >= floor
 
 
 def _db(before: float | None, after: float | None) -> float | None:
@@ -128,21 +168,57 @@ def _db(before: float | None, after: float | None) -> float | None:
     return 10.0 * math.log10(before / max(after, before * 1e-6))
 
 
-def summarise(records: list[dict]) -> list[str]:
-    """Lines for the terminal from the ``done`` records of a run that carry a ``report``."""
-    reps = [r["report"] for r in records if r.get("status") == "done" and r.get("report")]
+def summarise(records: list[dict], stages_off: bool = False) -> list[str]:
+    """Lines for the terminal from the ``done`` records of a run (``stages_off``: the run had no
+    stage at all, every one switched off). One story: a file whose input has a stripe pattern
+    (``found``) but whose depth was not changed is said to be left as it was, and why."""
+    done = [r for r in records if r.get("status") == "done"]
+    lines = []
+    thin = [r for r in done if r.get("note")]
+    if thin:
+        lines.append(
+            f"copied {len(thin)} file(s) with frames one pixel wide or high as they were (no "
+            "stage works on them; the note in their manifest record)"
+        )
+    unmeasured = [r for r in done if r.get("report") and "error" in r["report"]]
+    if unmeasured:
+        lines.append(
+            f"{len(unmeasured)} file(s) written but not measured (the reason is in their "
+            "manifest record)"
+        )
+    reps = [r["report"] for r in done if r.get("report") and "error" not in r["report"]]
     if not reps:
-        return []
+        return lines
     changed = sum(r["changed"] > 0 for r in reps)
     found = [r for r in reps if r["found"]]
-    lines = [
-        f"changed {changed} of {len(reps)} file(s); stripes found in {len(found)} "
-        f"(a pattern common to both halves of the frame, z >= {STRIPE_Z:g})"
-    ]
+    acted = [r for r in found if r["changed"] > 0]
+    left = [r for r in found if r["changed"] == 0]
+    why = (
+        "every stage is off"
+        if stages_off
+        else "the stage found nothing it could remove with confidence"
+    )
+    common = f"common to both halves of the frame, z >= {STRIPE_Z:g}"
+    if found and not acted:
+        lines += [
+            f"changed {changed} of {len(reps)} file(s)",
+            f"{why}; the record's stripe measure sees a pattern in {len(left)} file(s) "
+            f"({common}): left as they were",
+        ]
+    else:
+        lines.append(
+            f"changed {changed} of {len(reps)} file(s); stripes found in {len(found)} "
+            f"(a pattern {common})"
+        )
+        if left:
+            lines.append(
+                f"{len(left)} of them left as they were: the stage found nothing there it could "
+                "remove with confidence"
+            )
     for name in _ORIENTATIONS:
         gains = [
             _db(r["stripes"][name]["before_mm2"], r["stripes"][name]["after_mm2"])
-            for r in found
+            for r in acted
             if _found(r["stripes"][name], r["noise_mm"])
         ]
         gains = [g for g in gains if g is not None]
@@ -151,17 +227,16 @@ def summarise(records: list[dict]) -> list[str]:
                 f"{name[:-1]} stripe energy down {statistics.median(gains):.1f} dB (median over "
                 f"{len(gains)} file(s); range {min(gains):.1f} to {max(gains):.1f} dB)"
             )
-    done = [r for r in records if r.get("status") == "done" and r.get("report")]
+    measured = [r for r in records if r.get("status") == "done" and r.get("report")]
     for step in steps():
         if step.scope == "frame":
-            lines += step.summary(done)
-    lines.append(
-        "low-pass depth moved at most "
-        f"{max(r['lowpass_change_mm'] for r in reps):.2f} mm RMS (the scene itself)"
-    )
+            lines += step.summary(measured)
+    moved = _finite([r.get("lowpass_change_mm") for r in reps])
+    if moved:
+        lines.append(f"low-pass depth moved at most {max(moved):.2f} mm RMS (the scene itself)")
     if changed == 0:
         lines.append(
-            "nothing was changed: the outputs hold the input depth "
-            + ("(no stripe found)" if not found else "(the stage did not act on the stripes)")
+            "nothing was changed: the outputs hold the input depth"
+            + ("" if found else " (no stripe found)")
         )
     return lines

@@ -187,6 +187,10 @@ def stage_line(info: dict, stage: str, registered: list[Step] | None = None) -> 
         camera = f", camera {calib['camera']}" if calib.get("camera") else ""
         source = f", measured on {calib['frames']} calibration frame(s){camera}"
     if not parts:
-        nothing = "no periodic stripes or broadband offsets found" if calib else "every stage off"
+        nothing = (
+            "no periodic stripe or broadband offset it could remove with confidence"
+            if calib
+            else "every stage off"
+        )
         return f"stage {stage}{source}: nothing to do ({nothing}); the outputs equal the inputs"
     return f"stage {stage}{source}: " + "; ".join(parts)

@@ -31,7 +31,7 @@ from .. import __version__
 from .config import CleanConfig, config_to_toml, load_config
 from .figure import report_figure
 from .manifest import Manifest, finished, now, read_manifest
-from .measure import summarise
+from .measure import finite_values, summarise
 from .pipeline import Calibration, build_pipeline, describe, stage_line
 from .plan import (
     LOCK,
@@ -71,6 +71,8 @@ class CleanReport:
     stage: str = ""
     records: list = field(default_factory=list)
     figure: str | None = None
+    #: the run has no stage at all (every one switched off)
+    stages_off: bool = False
 
     @property
     def status(self) -> int:
@@ -86,7 +88,9 @@ class CleanReport:
             self.done += 1
             self.frames += rec["frames"]
             kept = {s.report_key: rec.get(s.report_key) for s in steps() if s.record_key == "file"}
-            self.records.append({"status": "done", "report": rec.get("report"), **kept})
+            self.records.append(
+                {"status": "done", "report": rec.get("report"), "note": rec.get("note"), **kept}
+            )
         else:
             self.failed += 1
             self.failures.append((rec["file"], rec["error"]))
@@ -101,7 +105,7 @@ class CleanReport:
             f"{rate:.1f} frames/s; {self.failed} failed; {self.already_done} already done; "
             f"output {self.output}, manifest {os.path.join(self.output, MANIFEST)}"
         )
-        lines += summarise(self.records)
+        lines += summarise(self.records, stages_off=self.stages_off)
         lines += [x for s in steps() if s.scope == "sequence" for x in s.summary(self.records)]
         if self.figure:
             lines.append(f"figure: {self.figure}")
@@ -252,6 +256,7 @@ def clean(
     pipeline = build_pipeline(config, lambda: _calibration(jobs, config)).to(run.device)
     report = CleanReport(output, jobs=len(jobs), created=not os.path.isdir(output))
     report.stage = stage_line(describe(pipeline), config.stage)
+    report.stages_off = pipeline.calibration is None and not [*pipeline.stages, *pipeline.sequence]
     os.makedirs(output, exist_ok=True)
     with output_lock(output):  # one run per OUTPUT at a time
         _saved_config(output, config)
@@ -289,7 +294,8 @@ def _run(output, config, jobs, pipeline, report: CleanReport, run: _Execution) -
             {
                 "event": "start", "run": token, "version": __version__, "engine": run.engine,
                 "workers": run.workers, "device": str(run.device), "jobs": len(jobs),
-                "todo": todo, "already_done": len(done), "pipeline": describe(pipeline),
+                "todo": todo, "already_done": len(done),
+                "pipeline": finite_values(describe(pipeline)),
                 "time": now(),
             }
         )  # fmt: skip

@@ -13,6 +13,10 @@ recomputes a group in full when any of its files is unfinished and writes only t
 Failures are per file: a file that cannot be read, decoded, computed or written gets a
 ``failed`` record with the reason and leaves nothing under its output names (temporary files are
 removed); the other files of the group go on.
+
+Frames no stage can work on pass through as they are: frames without a valid pixel (counted in
+the record's ``empty_frames``) and frames one pixel wide or high (:func:`~.measure.too_thin`;
+the record's ``note`` says so, :data:`THIN_NOTE`).
 """
 
 from __future__ import annotations
@@ -25,17 +29,44 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..io import FormatError
+from ..io import FormatError, MissingExtraError
 from ..io.encode import encode_depth
 from ..io.stored import FrameSet, frame_set_tensors, read_frame_sets, write_like
 from ..runtime import valid_mask
 from .config import CleanConfig
 from .manifest import input_identity, now
-from .measure import file_report
+from .measure import file_report, finite_values, too_thin
 from .plan import Job, temporary
 from .steps import steps
 
-__all__ = ["Loaded", "compute_group", "load_group", "read_jobs", "reason", "write_group"]
+__all__ = [
+    "THIN_NOTE",
+    "Loaded",
+    "NoFramesError",
+    "compute_group",
+    "load_group",
+    "read_jobs",
+    "reason",
+    "write_group",
+]
+
+#: the ``note`` of a file whose frames are one pixel wide or high (copied as they are)
+THIN_NOTE = "1-pixel-wide frame: copied"
+
+
+class NoFramesError(ValueError):
+    """INPUT has no readable frame with a valid pixel to measure a data-driven stage on.
+
+    Attributes:
+        failures: ``(file, reason)`` of every file of INPUT, in order, saying why it gave none.
+    """
+
+    HEADLINE = "no readable frame with a valid pixel in INPUT"
+
+    def __init__(self, failures: list[tuple[str, str]]) -> None:
+        self.failures = list(failures)
+        detail = "; ".join(f"{name}: {why}" for name, why in self.failures)
+        super().__init__(f"{self.HEADLINE} ({detail})" if detail else self.HEADLINE)
 
 
 @dataclass
@@ -54,14 +85,17 @@ class Loaded:
     #: ``<step>_<field>`` -> per frame set, the (frames, 1, H, W) map kept (pipeline.keep_maps)
     maps: dict[str, list[torch.Tensor]] | None = None
     empty: int = 0
+    #: frames one pixel wide or high (:func:`~.measure.too_thin`): copied as they are
+    thin: int = 0
     identity: dict | None = None
     error: str | None = None
     seconds: dict = field(default_factory=lambda: {"read": 0.0, "compute": 0.0, "write": 0.0})
 
 
 def reason(exc: BaseException) -> str:
-    """One line: the message of our own errors, the type and message of anything else."""
-    if isinstance(exc, (FormatError, ValueError, FileNotFoundError)):
+    """One line: the message of our own errors (and of a missing optional extra, which names
+    what to install), the type and message of anything else."""
+    if isinstance(exc, (FormatError, ValueError, FileNotFoundError, MissingExtraError)):
         text = str(exc)
     else:
         text = f"{type(exc).__name__}: {exc}"
@@ -96,25 +130,46 @@ def read_jobs(jobs: list[Job], config: CleanConfig, limit: int | None = None):
     """``(depth, amplitude, camera)``: the readable frames of ``jobs`` in order, of the first
     readable frame's size, at most ``limit``: (N, 1, H, W) metres and camera units (frames with no
     valid pixel left out), and the first camera a file names (None if none does). What the
-    data-driven stages and ``tof-fpn calibrate`` measure. ``ValueError`` when there is none."""
+    data-driven stages and ``tof-fpn calibrate`` measure; frames one pixel wide or high
+    (:func:`~.measure.too_thin`) are left out too. :class:`NoFramesError` (a ``ValueError``)
+    when there is none, with every file's reason."""
     depth, amplitude, camera = [], [], None
+    failures: list[tuple[str, str]] = []
     for job in jobs:
         if job.error is not None:
+            failures.append((job.name, job.error))
             continue
         (item,) = load_group([job], set(), config)
+        if item.error is not None:
+            failures.append((job.name, item.error))
+            continue
+        found = 0
         for fs, (d, a) in zip(item.sets or [], item.tensors or [], strict=True):
             camera = camera or fs.camera
-            if depth and d.shape[-2:] != depth[0].shape[-2:]:
+            if too_thin(d.shape) or (depth and d.shape[-2:] != depth[0].shape[-2:]):
                 continue
             has = valid_mask(d, a).flatten(1).any(1)
             depth.append(d[has])
             amplitude.append(a[has])
+            found += int(has.sum())
+        if not found:
+            failures.append((job.name, _unusable(item)))
         if limit is not None and sum(x.shape[0] for x in depth) >= limit:
             break
     if not depth or sum(x.shape[0] for x in depth) == 0:
-        raise ValueError("no readable frame with a valid pixel in INPUT")
+        raise NoFramesError(failures)
     depth, amplitude = torch.cat(depth)[:limit], torch.cat(amplitude)[:limit]
     return depth, amplitude, camera
+
+
+def _unusable(item: Loaded) -> str:
+    """Why a file that was read gave no frame to measure on."""
+    shapes = [tuple(d.shape[-2:]) for d, _ in item.tensors or []]
+    if shapes and all(too_thin(s) for s in shapes):
+        return f"{'x'.join(map(str, shapes[0]))} frames, one pixel wide: nothing to measure on"
+    if not shapes or all(d.shape[0] == 0 for d, _ in item.tensors or []):
+        return "no frame"
+    return "no frame with a valid pixel"
 
 
 def _frame_records(records: dict, i: int) -> dict:
@@ -140,14 +195,18 @@ def compute_group(
             continue
         item.cleaned = [torch.empty(0)] * len(item.tensors)
         for s, (depth, amplitude) in enumerate(item.tensors):
+            thin = too_thin(depth.shape)
             has = valid_mask(depth, amplitude).flatten(1).any(1).tolist()
             for f in range(depth.shape[0]):
-                if has[f]:
+                if has[f] and not thin:
                     slots.append((tuple(depth.shape[-2:]), item, s, f))
-                else:  # no valid pixel: nothing to clean, the frame passes as it is
+                else:  # no valid pixel, or one pixel wide: no stage runs, the frame passes as it is
                     zero = {f"{st}_{k}": torch.zeros_like(depth[f : f + 1]) for st, k in keep}
                     parts.setdefault((id(item), s), []).append((f, depth[f : f + 1], {}, zero))
-                    item.empty += 1
+                    if thin:
+                        item.thin += 1
+                    else:
+                        item.empty += 1
     shapes = list(dict.fromkeys(k for k, *_ in slots))
     for shape in shapes:
         same = [x for x in slots if x[0] == shape]
@@ -196,6 +255,8 @@ def _sequence(pipeline: torch.nn.Module, item: Loaded) -> None:
     t0 = time.perf_counter()
     try:
         for s, (fs, (_, amplitude)) in enumerate(zip(item.sets, item.tensors, strict=True)):
+            if too_thin(amplitude.shape):  # copied as it is (module docstring)
+                continue
             item.cleaned[s], recs = pipeline.run_sequence(
                 item.cleaned[s], amplitude, fs.timestamps_s
             )
@@ -287,6 +348,13 @@ def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig)
                 rec["report"] = res["report"]
             if item.empty:
                 rec["empty_frames"] = item.empty  # no valid pixel: written as they came
+            if item.thin:  # one pixel wide: written as they came
+                total = sum(int(fs.depth.shape[0]) for fs in item.sets)
+                rec["note"] = (
+                    THIN_NOTE
+                    if item.thin == total
+                    else f"{item.thin} of {total} frames one pixel wide: copied"
+                )
             for step in steps():  # a sequence step's record per frame set (temporal)
                 if step.record_key == "file" and item.sequence and step.name in item.sequence:
                     rec[step.report_key] = step.file_record(item.sequence[step.name])
@@ -306,6 +374,6 @@ def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig)
             rec.update(status="failed", error=item.error)
         rec.update({f"{k}_s": round(v, 6) for k, v in item.seconds.items()})
         rec["time"] = now()
-        records.append(rec)
+        records.append(finite_values(rec))  # JSON: null where a measure is undefined, no NaN
         item.sets = item.cleaned = item.maps = None
     return records

@@ -1,4 +1,5 @@
-"""What the sub-commands share: argument types that say what is allowed, output paths, threads.
+"""What the sub-commands share: argument types that say what is allowed, output paths, threads,
+a missing optional extra as one line (:func:`extras_named`).
 
 Output paths are kept as the strings the user typed: they are checked before any work is done
 (:func:`check_output_file`, :func:`check_output_dir`), the directories they need are created by
@@ -30,6 +31,21 @@ MIN_H = 1e-6
 
 class UsageError(ValueError):
     """A bad argument found after parsing: ``main`` prints it as one line and returns 2."""
+
+
+@contextmanager
+def extras_named() -> Iterator[None]:
+    """Turn a file format's missing optional extra (:class:`tof_fpn_torch.io.MissingExtraError`,
+    an ``ImportError`` whose message names ``pip install "tof_fpn_torch[<extra>]"``) into a
+    :class:`UsageError`: one line naming the extra, no traceback. Other errors pass."""
+    try:
+        yield
+    except ImportError as exc:
+        from ..io import MissingExtraError
+
+        if isinstance(exc, MissingExtraError):
+            raise UsageError(str(exc)) from None
+        raise
 
 
 def _allowed(lo: float | None, hi: float | None) -> str:

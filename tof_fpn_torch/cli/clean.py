@@ -22,7 +22,8 @@ except ModuleNotFoundError:  # Python 3.10: the same parser as a package
 
 from ..clean import ENGINES, CleanConfig, clean, load_config
 from ..clean.steps import FILE_OPTIONS, Option, TableOption, options
-from ._common import UsageError, int_arg, set_threads, threads_arg
+from ..clean.work import NoFramesError
+from ._common import UsageError, extras_named, int_arg, set_threads, threads_arg
 
 
 def _option(text: str) -> tuple[str, object]:
@@ -153,18 +154,28 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     if args.threads is not None:
         set_threads(args.threads)
-    report = clean(
-        args.input,
-        args.output,
-        config,
-        workers=args.workers,
-        device=args.device,
-        engine=args.engine,
-        progress=False if args.quiet else None,
-        concurrency=args.concurrency,
-        ray_address=args.ray_address,
-        figure=not args.no_figure,
-    )
+    try:
+        with extras_named():
+            report = clean(
+                args.input,
+                args.output,
+                config,
+                workers=args.workers,
+                device=args.device,
+                engine=args.engine,
+                progress=False if args.quiet else None,
+                concurrency=args.concurrency,
+                ray_address=args.ray_address,
+                figure=not args.no_figure,
+            )
+    except NoFramesError as exc:  # every file's reason, one line each, then the error
+        if not exc.failures:
+            raise
+        for name, why in exc.failures:
+            print(f"failed: {name}: {why}", flush=True)
+        raise ValueError(
+            f"{exc.HEADLINE} ({len(exc.failures)} file(s), each with its reason above)"
+        ) from None
     if report.created:
         print(f"created directory {args.output}")
     print(report.summary())

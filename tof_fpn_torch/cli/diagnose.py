@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from ._common import UsageError, check_output_dir, int_arg, threads_arg
+from ._common import UsageError, check_output_dir, extras_named, int_arg, threads_arg
 
 #: ``--out`` when not given.
 DEFAULT_OUT = "diagnosis_out"
@@ -66,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
     _existing("--scene", args.scene)
     _existing("--baseline", args.baseline)
     check_output_dir("--out", args.out)
-    rec = read_any_recording(args.recording, frame_files=False)
+    with extras_named():  # e.g. an .mkv without PyAV: one line naming the extra
+        rec = read_any_recording(args.recording, frame_files=False)
     scene = read_scene(args.scene) if args.scene is not None else None
     base = load_model(args.baseline) if args.baseline is not None else None
     kw = {} if args.bootstrap is None else {"replicates": args.bootstrap}
