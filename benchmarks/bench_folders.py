@@ -25,7 +25,8 @@ share of frames the cleaner made worse than its input by more than 2 % in RMS (t
 rule); for stripe-free (``none``) folders the share of frames whose output files are
 byte-identical to the input; and the frames that got worse although their manifest record reports
 a stripe reduction of at least 1 dB (a record that lies). Overall: the mean clean gain on striped
-folders as a percentage of the oracle's.
+folders as a percentage of the oracle's on the same frames. Frames without a cleaned output (the
+clean run failed) are counted as failed, with the run's error, and left out of the clean means.
 
 Only dev seeds (< ``camera_folders.HELD_OUT_START``) are accepted.
 
@@ -178,6 +179,15 @@ def summarise(rows: list[dict]) -> dict:
     ]
     eq = [r["same_bytes"] for r in rows if r.get("same_bytes") is not None]
     s["same_bytes_share"] = sum(eq) / len(eq) if eq else None
+    # frames without a cleaned output (the clean run failed): not in the clean means
+    s["failed_frames"] = [
+        f"{r['family']}/{r['pattern']}/s{r['seed']}/{r['stem']}"
+        for r in rows
+        if r.get("gain_clean_db") is None
+    ]
+    s["gain_oracle_paired_db"] = _mean(
+        r.get("gain_oracle_db") for r in rows if r.get("gain_clean_db") is not None
+    )
     return s
 
 
@@ -329,9 +339,13 @@ def table(result: dict) -> str:
     """The printed table: one line per pattern kind, then per family, then overall."""
     head = (
         f"{'group':22s} {'folders':>7s} {'frames':>6s} {'clean':>6s} {'oracle':>6s} "
-        f"{'basic':>6s} {'b_lvl':>6s} {'worse%':>6s} {'lying':>5s} {'same':>5s}"
+        f"{'basic':>6s} {'b_lvl':>6s} {'worse%':>6s} {'lying':>5s} {'same':>5s} {'failed':>6s}"
     )
-    lines = [head + "   (gains in dB; worse% = clean frames > +2 % RMS; same = none: bytes equal)"]
+    lines = [
+        head + "   (gains: mean dB over frames; worse% = clean frames > +2 % RMS; lying = worse"
+        " frames whose record claims >= 1 dB; same = none: bytes equal; failed = frames without"
+        " output)"
+    ]
     for title, groups in (("pattern", result["by_pattern"]), ("family", result["by_family"])):
         lines.append(f"-- by {title}")
         for k, s in groups.items():
@@ -341,15 +355,22 @@ def table(result: dict) -> str:
                 f"{_fmt(s['gain_oracle_db'])} {_fmt(s['gain_basic_db'])} "
                 f"{_fmt(s['gain_basic_level_db'])} "
                 f"{_fmt(None if ws is None else 100 * ws, '6.1f')} {len(s['lying_records']):5d} "
-                f"{_fmt(s['same_bytes_share'], '5.2f')}"
+                f"{_fmt(s['same_bytes_share'], '5.2f')} {len(s['failed_frames']):6d}"
             )
     o = result["overall"]
     lines.append(
         f"-- striped folders: clean {_fmt(o['gain_clean_db'])} dB, oracle "
-        f"{_fmt(o['gain_oracle_db'])} dB, clean = {_fmt(o['clean_pct_of_oracle'], '5.1f')}"
-        f" % of oracle; basic {_fmt(o['gain_basic_db'])} dB, basic_level "
+        f"{_fmt(o['gain_oracle_db'])} dB ({_fmt(o['gain_oracle_paired_db'])} dB on the frames"
+        f" cleaned), clean = {_fmt(o['clean_pct_of_oracle'], '5.1f')} % of oracle; basic {_fmt(o['gain_basic_db'])} dB, basic_level "
         f"{_fmt(o['gain_basic_level_db'])} dB"
     )
+    fails = {}
+    for r in result["frames"]:
+        if r.get("error"):
+            key = f"{r['family']}/{r['pattern']}/s{r['seed']}"
+            fails.setdefault(key, r["error"].strip().splitlines()[-1][:200])
+    for key, err in fails.items():
+        lines.append(f"-- FAILED {key}: {err}")
     t = result["timing"]
     lines.append(
         f"-- time per folder: make {t['make_s']:.1f} s, clean {t['clean_s']:.1f} s, "
@@ -370,7 +391,7 @@ def aggregate(rows: list[dict]) -> dict:
         if any(r["family"] == f for r in rows)
     }
     striped = summarise([r for r in rows if r["pattern"] != "none"]) if rows else {}
-    gc, go = striped.get("gain_clean_db"), striped.get("gain_oracle_db")
+    gc, go = striped.get("gain_clean_db"), striped.get("gain_oracle_paired_db")
     overall = {
         **{
             k: striped.get(k)
@@ -379,6 +400,7 @@ def aggregate(rows: list[dict]) -> dict:
                 "frames",
                 "gain_clean_db",
                 "gain_oracle_db",
+                "gain_oracle_paired_db",
                 "gain_basic_db",
                 "gain_basic_level_db",
             )
@@ -479,6 +501,7 @@ def main(argv=None) -> int:
         if tmp is not None:
             tmp.cleanup()
     result = aggregate(rows)
+    result["frames"] = rows
     result["config"] = {
         "families": args.families,
         "patterns": args.patterns,
@@ -490,7 +513,6 @@ def main(argv=None) -> int:
         "basic_patterns": args.basic_patterns,
         "wall_s": time.perf_counter() - t0,
     }
-    result["frames"] = rows
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1, default=float))
     print(table(result))

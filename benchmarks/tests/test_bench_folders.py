@@ -126,12 +126,25 @@ def test_summary_counts_worse_frames_lies_and_byte_equality():
     assert s["worse_share_clean"] == pytest.approx(0.25)
     assert s["lying_records"] == ["boxes/stripes/s0/b"]
     assert s["same_bytes_share"] == pytest.approx(0.5)
+    assert s["failed_frames"] == []
+    # a frame the cleaner failed on: counted, left out of the clean mean and of the paired oracle
+    rows.append({**base, "pattern": "stripes", "stem": "c", "gain_oracle_db": 8.0, "error": "x"})
+    s = bf.summarise(rows)
+    assert s["failed_frames"] == ["boxes/stripes/s0/c"]
+    assert s["gain_oracle_db"] == pytest.approx(12.0 / 5)
+    assert s["gain_oracle_paired_db"] == pytest.approx(1.0)
     for r in rows:
         r.update(t_make_s=1.0, t_clean_s=2.0, t_basic_s=None)
     agg = bf.aggregate(rows)
     # striped folders: clean 0.5 dB mean, oracle 2 dB; the stripe-free ones are left out
     assert agg["overall"]["gain_clean_db"] == pytest.approx(0.5)
-    assert agg["overall"]["gain_oracle_db"] == pytest.approx(2.0)
+    assert agg["overall"]["gain_oracle_db"] == pytest.approx(4.0)
+    assert agg["overall"]["gain_oracle_paired_db"] == pytest.approx(2.0)
     assert agg["overall"]["clean_pct_of_oracle"] == pytest.approx(25.0)
     assert agg["by_pattern"]["none"]["gain_oracle_db"] == pytest.approx(0.0)
     assert agg["by_family"]["boxes"]["gain_clean_db"] == pytest.approx(0.25)
+    assert agg["timing"]["folders"] == 2
+    agg["frames"] = rows
+    text = bf.table(agg)
+    assert "FAILED boxes/stripes/s0: x" in text
+    assert "25.0 % of oracle" in text
