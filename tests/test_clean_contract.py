@@ -78,14 +78,7 @@ def test_a_config_round_trips_through_toml():
 
     back = config_from_dict(tomllib.loads(config_to_toml(c)))
     assert back == c and back.temporal_guard == float("inf")
-    assert [s.name for s in steps()] == [
-        "pattern",
-        "learned",
-        "fpn",
-        "flying",
-        "denoise",
-        "temporal",
-    ]
+    assert [s.name for s in steps()] == ["pattern", "fpn", "flying", "denoise", "temporal"]
 
 
 def test_the_guide_lists_every_key():

@@ -13,7 +13,6 @@ from .denoise import STEP as DENOISE
 from .files import FILE_OPTIONS
 from .flying import STEP as FLYING
 from .fpn import STEP as FPN
-from .learned import STEP as LEARNED
 from .pattern import STEP as PATTERN
 from .temporal import STEP as TEMPORAL
 
@@ -30,7 +29,7 @@ __all__ = [
     "unregister",
 ]
 
-_STEPS: list[Step] = [PATTERN, LEARNED, FPN, FLYING, DENOISE, TEMPORAL]
+_STEPS: list[Step] = [PATTERN, FPN, FLYING, DENOISE, TEMPORAL]
 
 
 def steps() -> list[Step]:
