@@ -198,3 +198,32 @@ def test_denoiser_registry_takes_new_names():
         build_pipeline(CleanConfig(stage="paper", denoise="wiener"))
     with pytest.raises(ValueError, match="identifier"):
         register_denoiser("none", Halve)
+
+
+def test_the_auto_stage_falls_back_when_the_design_refuses_its_notch(monkeypatch):
+    """A measured notch whose filter the design refuses (e.g. 3.113 rad on a 171 x 229 frame:
+    rho 0.008) is dropped, the rest is measured, and the stage line says why; with a rho the
+    user chose, the refusal is theirs to see."""
+    from tof_fpn_torch.build import DesignRefused
+    from tof_fpn_torch.clean.pipeline import stage_line
+    from tof_fpn_torch.clean.steps import fpn as fpn_step
+
+    def refuse(*args, **kwargs):
+        raise DesignRefused(
+            "the design {order 20, rho 0.0082} for notches [3.113] has a passband ripple of "
+            "-0.0 dB (DC gain 1.000); the stage needs <= -20 dB: use a higher order or a larger rho"
+        )
+
+    monkeypatch.setattr(fpn_step, "suppression_from_data", refuse)
+    g = torch.Generator().manual_seed(1)
+    offsets = (
+        2.0 + 0.004 * torch.randn(64, generator=g) + 0.002 * torch.randn(4, 1, 40, 64, generator=g)
+    )
+    a = torch.full_like(offsets, 100.0)
+    p = build_pipeline(CleanConfig(), lambda: Calibration(offsets, a))
+    assert p.stage("fpn").filter is None and isinstance(p.stage("fpn").destripe, Destripe)
+    line = stage_line(describe(p), "auto")
+    assert "the notch fell back to none: the design {order 20, rho 0.0082}" in line
+    assert "use a higher order" not in line and "destripe" in line
+    with pytest.raises(DesignRefused, match="passband ripple"):
+        build_pipeline(CleanConfig(rho=0.01), lambda: Calibration(offsets, a))

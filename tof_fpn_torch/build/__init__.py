@@ -27,6 +27,7 @@ from .design import (
     DEFAULT_TRAINABLE,
     DEFAULT_UNIT_DC,
     MAX_RIPPLE_DB,
+    DesignRefused,
     filter_from_design,
     suppression_from_design,
     trainable_suppression,
@@ -34,6 +35,7 @@ from .design import (
 from .fusion import fusion_from_data, fusion_from_noise
 
 __all__ = [
+    "DesignRefused",
     "AUTO_DESTRIPE_MIN_Z",
     "AUTO_DESTRIPE_WIDTH",
     "DEFAULT_ADAPTIVE",

@@ -31,6 +31,7 @@ __all__ = [
     "DEFAULT_GATE",
     "DEFAULT_TRAINABLE",
     "DEFAULT_UNIT_DC",
+    "DesignRefused",
     "HALF_SAMPLE_MAX_EDGE",
     "MAX_RIPPLE_DB",
     "filter_from_design",
@@ -66,6 +67,12 @@ DEFAULT_ADAPTIVE = True
 DEFAULT_GATE = True
 
 
+class DesignRefused(ValueError):
+    """A design whose passband ripple is worse than the builder's ``max_ripple_db``: the filter
+    would change the scene more than it removes stripes (a caller that chose the notches itself
+    can fall back without a notch)."""
+
+
 def _design(
     order: int,
     rho: float,
@@ -79,7 +86,7 @@ def _design(
     compensated; ValueError if the ripple is worse than ``max_ripple_db``."""
     design = design_fpn(order, rho, notches=notches, band_weights=band_weights, unit_dc=unit_dc)
     if max_ripple_db is not None and not design.ripple_db <= max_ripple_db:
-        raise ValueError(
+        raise DesignRefused(
             f"the design {{order {order}, rho {rho:g}}} for notches "
             f"{[round(w, 4) for w in design.notches]} has a passband ripple of "
             f"{design.ripple_db:.1f} dB (DC gain {design.dc_gain:.3f}); the stage needs "

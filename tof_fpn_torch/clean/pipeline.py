@@ -78,6 +78,8 @@ class CleanPipeline(nn.Module):
         self.calibration: dict | None = None
         #: step name -> the per-pixel record fields to keep (written beside each output)
         self.keep_maps: dict[str, tuple[str, ...]] = {}
+        #: step name -> what its builder said (found, or why nothing was built)
+        self.notes: dict[str, str] = {}
 
     def stage(self, name: str) -> nn.Module | None:
         """The stage of the step ``name``, or None when this run has none."""
@@ -145,6 +147,7 @@ def build_pipeline(
         return c
 
     measured = False
+    notes: dict[str, str] = {}
     for step in steps():
         upto = len(built)
         ctx = Context(config, lambda upto=upto: frames_for(upto), list(built))
@@ -152,7 +155,10 @@ def build_pipeline(
         measured = measured or ctx.measured
         if module is not None:
             built.append((step.name, module))
+        if ctx.notes:
+            notes[step.name] = "; ".join(ctx.notes)
     pipeline = CleanPipeline(built)
+    pipeline.notes = notes
     for step in steps():
         if step.keep_maps is not None and pipeline.stage(step.name) is not None:
             pipeline.keep_maps[step.name] = tuple(step.keep_maps(config))
@@ -175,12 +181,17 @@ def describe(pipeline: CleanPipeline) -> dict:
     for step in steps():
         out.update(step.describe(pipeline.stage(step.name)))
     out["calibration"] = pipeline.calibration
+    if pipeline.notes:
+        out["notes"] = dict(pipeline.notes)
     return out
 
 
 def stage_line(info: dict, stage: str, registered: list[Step] | None = None) -> str:
     """One line saying what the pipeline of :func:`describe` does (what the command prints)."""
-    parts = [p for step in registered or steps() for p in step.phrase(info)]
+    registered = registered or steps()
+    parts = [p for step in registered for p in step.phrase(info)]
+    notes = info.get("notes") or {}
+    said = "".join(f"; {notes[step.name]}" for step in registered if step.name in notes)
     calib = info.get("calibration")
     source = ""
     if calib is not None:
@@ -192,5 +203,7 @@ def stage_line(info: dict, stage: str, registered: list[Step] | None = None) -> 
             if calib
             else "every stage off"
         )
-        return f"stage {stage}{source}: nothing to do ({nothing}); the outputs equal the inputs"
-    return f"stage {stage}{source}: " + "; ".join(parts)
+        return (
+            f"stage {stage}{source}: nothing to do ({nothing}); the outputs equal the inputs{said}"
+        )
+    return f"stage {stage}{source}: " + "; ".join(parts) + said

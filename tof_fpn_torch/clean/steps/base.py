@@ -111,17 +111,24 @@ class Context:
             (measured once, when first called; the stages built before this one already
             applied), or raising ``ValueError`` when the run has none.
         measured: set by a builder that used the calibration frames.
+        notes: what the builder says about what it found (:meth:`note`).
     """
 
     config: Any
     calibration: Callable[[], Any]
     earlier: list[tuple[str, nn.Module]] = field(default_factory=list)
     measured: bool = False
+    notes: list[str] = field(default_factory=list)
 
     def frames(self):
         """The calibration frames (and note that a stage was measured on them)."""
         self.measured = True
         return self.calibration()
+
+    def note(self, text: str) -> None:
+        """One line for the stage line and the manifest: what was found, or why nothing was
+        built (a builder that returns None says why here)."""
+        self.notes.append(text)
 
 
 def _nothing(*_args) -> list:

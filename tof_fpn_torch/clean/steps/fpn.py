@@ -17,6 +17,7 @@ from torch import nn
 from ... import cameras
 from ... import constants as K
 from ...build import (
+    DesignRefused,
     broadband_from_data,
     filter_from_design,
     fusion_from_data,
@@ -181,13 +182,20 @@ def _build(ctx: Context) -> FPNSuppression | None:
     if c.destripe in _DESTRIPE_DIMS:
         destripe = Destripe(dim=_DESTRIPE_DIMS[c.destripe])
     fpn: FPNSuppression | None = None
+    measured_notch = c.notch == "data"
     if c.notch == "design":
         fpn = _design_stage(ctx, K.DEFAULT_RHO if c.rho is None else c.rho, destripe)
     elif c.notch == "data":
-        fpn = _data_stage(ctx, destripe)
-    elif destripe is not None:
+        try:
+            fpn = _data_stage(ctx, destripe)
+        except DesignRefused as exc:  # the stripes it measured need a filter it cannot make
+            if c.rho is not None:  # a rho the user chose: their setting, their error
+                raise
+            ctx.note(f"the notch fell back to none: {exc.args[0].split(': use')[0]}")
+            measured_notch = False
+    if fpn is None and destripe is not None:
         fpn = FPNSuppression(None, None, destripe=destripe)
-    if c.destripe == "auto" and c.notch != "data":
+    if c.destripe == "auto" and not measured_notch:
         frames = ctx.frames()
         with torch.no_grad():
             notched = frames.depth if fpn is None else fpn(frames.depth, frames.amplitude)
