@@ -49,13 +49,10 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import camera_folders as cf
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-if str(HERE) not in sys.path:
-    sys.path.insert(0, str(HERE))
-
-import camera_folders as cf  # noqa: E402
 
 #: a frame "got worse" when its output RMS exceeds the input's by more than this share
 WORSE_TOL = 0.02
