@@ -52,8 +52,6 @@ from pathlib import Path
 import camera_folders as cf
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-
 #: a frame "got worse" when its output RMS exceeds the input's by more than this share
 WORSE_TOL = 0.02
 #: a record "claims a stripe reduction" when an axis' stripe energy fell by at least this, dB
