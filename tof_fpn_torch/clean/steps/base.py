@@ -116,7 +116,6 @@ class Context:
 
     config: Any
     calibration: Callable[[], Any]
-    earlier: list[tuple[str, nn.Module]] = field(default_factory=list)
     measured: bool = False
     notes: list[str] = field(default_factory=list)
 
