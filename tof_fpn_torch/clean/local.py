@@ -7,6 +7,9 @@ parallel reading (and, on the CPU, computing and writing).
 * ``workers = N`` on a GPU: the workers load (decode); this process computes on the GPU, batch
   after batch, and ``N`` threads encode and write.
 
+Each group of files is ``(jobs, todo, camera)``: ``camera`` indexes the pipeline its files run
+through (one per camera group, :mod:`.cameras`).
+
 Workers ignore SIGINT / SIGTERM (this process decides when to stop: it finishes the groups in
 flight, see :func:`tof_fpn_torch.clean.clean`) and are killed by the kernel when this process dies
 (``PR_SET_PDEATHSIG`` on Linux), so a killed run leaves no worker writing behind it.
@@ -17,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import signal
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import torch
@@ -46,28 +49,28 @@ def _worker_init(_: int) -> None:
 
 
 class _Groups(Dataset):
-    """Item ``i``: group ``i`` loaded (``pipeline`` None) or loaded, computed and written (its
-    manifest records)."""
+    """Item ``i``: group ``i`` loaded, with its camera (``pipelines`` None), or loaded, computed
+    with its camera's pipeline and written (its manifest records)."""
 
-    def __init__(self, groups, config, pipeline, token: str, root: str) -> None:
-        self.groups, self.config, self.pipeline = groups, config, pipeline
+    def __init__(self, groups, config, pipelines, token: str, root: str) -> None:
+        self.groups, self.config, self.pipelines = groups, config, pipelines
         self.token, self.root = token, root
 
     def __len__(self) -> int:
         return len(self.groups)
 
     def __getitem__(self, i: int):
-        jobs, todo = self.groups[i]
+        jobs, todo, camera = self.groups[i]
         group = load_group(jobs, todo, self.config)
-        if self.pipeline is None:
-            return group
-        compute_group(self.pipeline, group, self.config.batch, "cpu")
+        if self.pipelines is None:
+            return camera, group
+        compute_group(self.pipelines[camera], group, self.config.batch, "cpu")
         return write_group(group, self.token, self.root, self.config)
 
 
 def run_local(
-    groups: list[tuple[list[Job], set[str]]],
-    pipeline: torch.nn.Module,
+    groups: list[tuple[list[Job], set[str], int]],
+    pipelines: Sequence[torch.nn.Module],
     config: CleanConfig,
     *,
     token: str,
@@ -77,19 +80,20 @@ def run_local(
     device: torch.device | str = "cpu",
     compute_in_workers: bool | None = None,
 ) -> Iterator[list[dict]]:
-    """Yield the manifest records of each group, in group order; stop after the groups in
-    flight once ``stop()`` is true."""
+    """Yield the manifest records of each group, in group order, each group computed with
+    ``pipelines[camera]``; stop after the groups in flight once ``stop()`` is true."""
     if workers == 0:
-        for jobs, todo in groups:
+        for jobs, todo, camera in groups:
             if stop():
                 return
             group = load_group(jobs, todo, config)
-            compute_group(pipeline, group, config.batch, device)
+            compute_group(pipelines[camera], group, config.batch, device)
             yield write_group(group, token, root, config)
         return
     device = torch.device(device)
     in_workers = device.type == "cpu" if compute_in_workers is None else compute_in_workers
-    data = _Groups(groups, config, pipeline.cpu() if in_workers else None, token, root)
+    cpu = [p.cpu() for p in pipelines] if in_workers else None
+    data = _Groups(groups, config, cpu, token, root)
     loader = DataLoader(
         data,
         batch_size=None,
@@ -108,8 +112,8 @@ def run_local(
             return
         with ThreadPoolExecutor(workers) as pool:
             pending: deque = deque()
-            for group in it:
-                compute_group(pipeline, group, config.batch, device)
+            for camera, group in it:
+                compute_group(pipelines[camera], group, config.batch, device)
                 pending.append(pool.submit(write_group, group, token, root, config))
                 while pending and (pending[0].done() or len(pending) > 2 * workers):
                     yield pending.popleft().result()

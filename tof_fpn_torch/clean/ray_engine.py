@@ -1,12 +1,14 @@
 """The Ray engine of ``tof-fpn clean`` (``--engine ray``): the same groups, steps and manifest as
 the local engine, spread over a Ray cluster with Ray Data.
 
-Dataflow (one row per group of files; ``batch_size=1`` row per call)::
+Dataflow (one row per group of files and its camera; ``batch_size=1`` row per call)::
 
     ray.data.from_items(groups)                  the file list, in fixed groups (plan.groups_of)
+                                                 per camera (cameras.camera_groups)
       .map_batches(_load)                        tasks: read + decode (work.load_group)
-      .map_batches(_Compute, ActorPoolStrategy(size=N))      actor pool: the torch pipeline, on a GPU each
-                                                 when the run's device is CUDA (compute_group)
+      .map_batches(_Compute, ActorPoolStrategy(size=N))      actor pool: the torch pipelines (one
+                                                 per camera), on a GPU each when the run's device
+                                                 is CUDA (compute_group)
       .map_batches(_write)                       tasks: encode, temporary name, rename
       .iter_batches()                            the driver appends the records to the manifest
 
@@ -23,7 +25,7 @@ import json
 import logging
 import os
 import pickle
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -39,24 +41,26 @@ __all__ = ["run_ray", "start_ray"]
 def _load(batch: dict, config: CleanConfig) -> dict:
     out = []
     for blob in batch["group"]:
-        jobs, todo = pickle.loads(blob)
-        out.append(pickle.dumps(load_group(jobs, todo, config)))
+        jobs, todo, camera = pickle.loads(blob)
+        out.append(pickle.dumps((camera, load_group(jobs, todo, config))))
     return {"payload": np.array(out, dtype=object)}
 
 
 class _Compute:
-    """An actor holding the pipeline (built once on the driver, shipped pickled)."""
+    """An actor holding the pipelines, one per camera (built once on the driver, shipped
+    pickled); a group runs through its camera's."""
 
-    def __init__(self, pipeline_blob: bytes, batch: int, device: str) -> None:
+    def __init__(self, pipelines_blob: bytes, batch: int, device: str) -> None:
         torch.set_num_threads(1)
         self.device = torch.device(device)
-        self.pipeline = pickle.loads(pipeline_blob).to(self.device)
+        self.pipelines = [p.to(self.device) for p in pickle.loads(pipelines_blob)]
         self.batch = batch
 
     def __call__(self, batch: dict) -> dict:
         out = []
         for blob in batch["payload"]:
-            group = compute_group(self.pipeline, pickle.loads(blob), self.batch, self.device)
+            camera, group = pickle.loads(blob)
+            group = compute_group(self.pipelines[camera], group, self.batch, self.device)
             out.append(pickle.dumps(group))
         return {"payload": np.array(out, dtype=object)}
 
@@ -96,8 +100,8 @@ def start_ray(address: str | None = None):
 
 
 def run_ray(
-    groups: list[tuple[list[Job], set[str]]],
-    pipeline: torch.nn.Module,
+    groups: list[tuple[list[Job], set[str], int]],
+    pipelines: Sequence[torch.nn.Module],
     config: CleanConfig,
     *,
     token: str,
@@ -107,8 +111,8 @@ def run_ray(
     concurrency: int | None = None,
     address: str | None = None,
 ) -> Iterator[list[dict]]:
-    """Yield the manifest records of each group as its files land (any order); after ``stop()``
-    is true, take no more results (the tasks in flight finish or are dropped with Ray)."""
+    """Yield the manifest records of each group as its files land (any order), each group
+    computed with ``pipelines[camera]``; after ``stop()`` is true, take no more results (the tasks in flight finish or are dropped with Ray)."""
     ray, started = start_ray(address)
     device = torch.device(device)
     gpu = device.type == "cuda"
@@ -126,7 +130,8 @@ def run_ray(
         items = [{"group": pickle.dumps(g)} for g in groups]
         ds = ray.data.from_items(items, override_num_blocks=len(items))
         ds = ds.map_batches(_load, batch_size=1, fn_kwargs={"config": config})
-        blob, size, dev = pickle.dumps(pipeline.cpu()), config.batch, "cuda" if gpu else "cpu"
+        blob = pickle.dumps([p.cpu() for p in pipelines])
+        size, dev = config.batch, "cuda" if gpu else "cpu"
 
         class _Bound(_Compute):  # the module travels with the class, not as an object-store arg
             def __init__(self) -> None:

@@ -1,13 +1,15 @@
 """:func:`clean`: a whole ``tof-fpn clean`` run, engine-independent (safety, resume, manifest).
 
 1. Refuse an OUTPUT that would overwrite INPUT or someone else's files (:func:`~.plan.check_paths`).
-2. Plan the jobs (:func:`~.plan.plan_jobs`), build the pipeline (measuring data-driven stages on
-   the first frames), all before anything is written.
+2. Plan the jobs (:func:`~.plan.plan_jobs`), group them by camera (:func:`~.cameras.camera_groups`)
+   and build one pipeline per camera (measuring data-driven stages on the first frames of that
+   camera's files), all before anything is written.
 3. Make OUTPUT, save the configuration as ``clean.toml`` (or, resuming, refuse a different one),
    read the manifest: files finished by an earlier run are skipped; temporary files a killed run
    left are removed.
-4. Run the engine (local or Ray) over the groups with unfinished files; append each file's record
-   to the manifest as its outputs land; show a progress bar (files/s, ETA).
+4. Run the engine (local or Ray) over the groups with unfinished files, each through its camera's
+   pipeline; append each file's record (naming its camera) to the manifest as its outputs land;
+   show a progress bar (files/s, ETA).
 5. SIGTERM / SIGINT: stop taking new groups, finish the ones in flight, record them, remove
    temporary files, write the ``end`` record; :attr:`CleanReport.status` is ``128 + signal``.
 """
@@ -28,11 +30,12 @@ import torch
 from tqdm import tqdm
 
 from .. import __version__
+from .cameras import camera_groups
 from .config import CleanConfig, config_to_toml, load_config
 from .figure import report_figure
 from .manifest import Manifest, finished, now, read_manifest
 from .measure import finite_values, summarise
-from .pipeline import Calibration, build_pipeline, describe, stage_line
+from .pipeline import Calibration, CleanPipeline, build_pipeline, describe, stage_line
 from .plan import (
     LOCK,
     MANIFEST,
@@ -44,9 +47,18 @@ from .plan import (
     remove_stale_temporaries,
 )
 from .steps import steps
-from .work import read_jobs
+from .work import NoFramesError, read_jobs
 
-__all__ = ["ENGINES", "CleanReport", "clean", "resolve_device"]
+__all__ = [
+    "ENGINES",
+    "UNMEASURED",
+    "Camera",
+    "CleanReport",
+    "build_cameras",
+    "clean",
+    "resolve_device",
+    "stage_lines",
+]
 
 ENGINES = ("local", "ray")
 #: failed files listed by :meth:`CleanReport.summary` (all are in the manifest)
@@ -135,6 +147,82 @@ def _calibration(jobs, config: CleanConfig) -> Calibration:
     """The first ``calibration_frames`` readable frames (of the first readable frame's shape,
     frames with no valid pixel left out), and the camera the files name."""
     return Calibration(*read_jobs(jobs, config, config.calibration_frames))
+
+
+#: a camera group whose files hold no frame to measure on (others do): it gets no stage
+UNMEASURED = (
+    "no readable frame with a valid pixel to measure on; its frames pass as they are "
+    "(files that cannot be read fail)"
+)
+
+
+@dataclass
+class Camera:
+    """One camera group of a run (:func:`~.cameras.camera_groups`) and its pipeline.
+
+    Attributes:
+        key: the group's camera key (None: the run has no runnable file).
+        jobs: its runnable jobs, in file order.
+        pipeline: the stages its files run through, measured on its own frames.
+        unmeasured: why nothing was measured (:data:`UNMEASURED`), else None.
+    """
+
+    key: str | None
+    jobs: list
+    pipeline: CleanPipeline
+    unmeasured: str | None = None
+
+    def record(self) -> dict:
+        """The group in the manifest's ``start`` record: ``key``, ``files`` (how many),
+        ``pipeline`` (:func:`~.pipeline.describe`), ``note`` when nothing was measured."""
+        rec = {"key": self.key, "files": len(self.jobs), "pipeline": describe(self.pipeline)}
+        if self.unmeasured:
+            rec["note"] = self.unmeasured
+        return finite_values(rec)
+
+
+def build_cameras(jobs, config: CleanConfig) -> list[Camera]:
+    """One :class:`Camera` per camera group of ``jobs``, each pipeline measured on the first
+    readable frames of its own files. A folder of one camera is measured as a whole, as before
+    cameras were told apart (the jobs that failed planning name their reason in a
+    :class:`~.work.NoFramesError`). With several groups, a group none of whose files has a frame to
+    measure on gets no stage (its frames pass as they are, :data:`UNMEASURED`);
+    :class:`~.work.NoFramesError`, with every file's reason in file order, when no group has
+    one."""
+    groups = camera_groups(jobs, config)
+    if len(groups) <= 1:
+        key, members = groups[0] if groups else (None, [])
+        return [Camera(key, members, build_pipeline(config, lambda: _calibration(jobs, config)))]
+    cameras, failures = [], []
+    for key, members in groups:
+        try:
+            pipeline = build_pipeline(config, lambda m=members: _calibration(m, config))
+        except NoFramesError as exc:
+            failures += exc.failures
+            cameras.append(Camera(key, members, CleanPipeline(), UNMEASURED))
+        else:
+            cameras.append(Camera(key, members, pipeline))
+    if all(c.unmeasured for c in cameras):
+        failures += [(j.name, j.error) for j in jobs if j.error is not None]
+        order = {j.name: i for i, j in enumerate(jobs)}
+        raise NoFramesError(sorted(failures, key=lambda f: order.get(f[0], len(order))))
+    return cameras
+
+
+def stage_lines(cameras: list[Camera], stage: str) -> str:
+    """What the command prints of the stages: one camera's :func:`~.pipeline.stage_line`, or,
+    for several cameras, one line per camera, ``camera <key> (<n> file(s)): <its stage line>``."""
+    if len(cameras) == 1:
+        return stage_line(describe(cameras[0].pipeline), stage)
+    lines = []
+    for c in cameras:
+        line = (
+            f"stage {stage}: nothing measured ({c.unmeasured})"
+            if c.unmeasured
+            else stage_line(describe(c.pipeline), stage)
+        )
+        lines.append(f"camera {c.key} ({len(c.jobs)} file(s)): {line}")
+    return "\n".join(lines)
 
 
 @contextlib.contextmanager
@@ -253,14 +341,19 @@ def clean(
                      compute_in_workers, figure)  # fmt: skip
     check_paths(input_path, output)
     jobs = plan_jobs(input_path, output)
-    pipeline = build_pipeline(config, lambda: _calibration(jobs, config)).to(run.device)
+    cameras = build_cameras(jobs, config)
+    for c in cameras:
+        c.pipeline.to(run.device)
     report = CleanReport(output, jobs=len(jobs), created=not os.path.isdir(output))
-    report.stage = stage_line(describe(pipeline), config.stage)
-    report.stages_off = pipeline.calibration is None and not [*pipeline.stages, *pipeline.sequence]
+    report.stage = stage_lines(cameras, config.stage)
+    report.stages_off = all(
+        c.pipeline.calibration is None and not [*c.pipeline.stages, *c.pipeline.sequence]
+        for c in cameras
+    )
     os.makedirs(output, exist_ok=True)
     with output_lock(output):  # one run per OUTPUT at a time
         _saved_config(output, config)
-        _run(output, config, jobs, pipeline, report, run)
+        _run(output, config, jobs, cameras, report, run)
     return report
 
 
@@ -278,24 +371,32 @@ class _Execution:
     figure: bool
 
 
-def _run(output, config, jobs, pipeline, report: CleanReport, run: _Execution) -> None:
+def _run(output, config, jobs, cameras: list[Camera], report: CleanReport, run: _Execution) -> None:
     """Steps 3-5 of the module docstring, OUTPUT locked and its configuration saved."""
     manifest_path = os.path.join(output, MANIFEST)
     done = finished(read_manifest(manifest_path), jobs)
     remove_stale_temporaries(output)
     report.already_done = len(done)
-    groups = [(g, {j.name for j in g} - done) for g in groups_of(jobs, config.batch)]
-    groups = [(g, todo) for g, todo in groups if todo]
+    groups = [
+        (g, {j.name for j in g} - done, i)
+        for i, c in enumerate(cameras)
+        for g in groups_of(c.jobs, config.batch)
+    ]
+    groups = [(g, todo, i) for g, todo, i in groups if todo]
+    camera_of = {j.name: c.key for c in cameras for j in c.jobs}
     token = f"{os.getpid()}-{secrets.token_hex(4)}"
     t0 = time.perf_counter()
     with Manifest(manifest_path) as man, _signals() as caught:
-        todo = sum(len(t) for _, t in groups)
+        todo = sum(len(t) for _, t, _ in groups)
         man.write(
             {
                 "event": "start", "run": token, "version": __version__, "engine": run.engine,
                 "workers": run.workers, "device": str(run.device), "jobs": len(jobs),
                 "todo": todo, "already_done": len(done),
-                "pipeline": finite_values(describe(pipeline)),
+                "pipeline": (
+                    finite_values(describe(cameras[0].pipeline)) if len(cameras) == 1 else None
+                ),
+                "cameras": [c.record() for c in cameras if c.key is not None],
                 "time": now(),
             }
         )  # fmt: skip
@@ -304,10 +405,11 @@ def _run(output, config, jobs, pipeline, report: CleanReport, run: _Execution) -
                 rec = {"file": job.name, "status": "failed", "error": job.error}
                 man.write({**rec, "time": now()})
                 report.add(rec)
+        pipelines = [c.pipeline for c in cameras]
         stream = _engine_stream(
-            run, groups, pipeline, config, token=token, root=output, stop=lambda: bool(caught)
+            run, groups, pipelines, config, token=token, root=output, stop=lambda: bool(caught)
         )
-        _consume(stream, man, report, todo, run.progress)
+        _consume(stream, man, report, todo, run.progress, camera_of)
         _remove_own_temporaries(output, token)
         report.seconds = time.perf_counter() - t0
         report.interrupted = caught[0] if caught else None
@@ -342,25 +444,29 @@ def _checked(config, engine: str, workers) -> CleanConfig:
     return config
 
 
-def _engine_stream(run: _Execution, groups, pipeline, config, **kw):
-    """The records of the groups, from the local or the Ray engine."""
+def _engine_stream(run: _Execution, groups, pipelines, config, **kw):
+    """The records of the groups (each ``(jobs, todo, camera)``, run through
+    ``pipelines[camera]``), from the local or the Ray engine."""
     if run.engine == "local":
         from .local import run_local
 
         return run_local(
-            groups, pipeline, config, workers=run.workers, device=run.device,
+            groups, pipelines, config, workers=run.workers, device=run.device,
             compute_in_workers=run.compute_in_workers, **kw,
         )  # fmt: skip
     from .ray_engine import run_ray
 
     return run_ray(
-        groups, pipeline, config, device=run.device, concurrency=run.concurrency,
+        groups, pipelines, config, device=run.device, concurrency=run.concurrency,
         address=run.ray_address, **kw,
     )  # fmt: skip
 
 
-def _consume(stream, man: Manifest, report: CleanReport, total: int, progress) -> None:
-    """Append each record to the manifest as its file lands, count it, show progress."""
+def _consume(
+    stream, man: Manifest, report: CleanReport, total: int, progress, camera_of: dict
+) -> None:
+    """Append each record to the manifest as its file lands (with its ``camera``, the key of
+    its camera group, from ``camera_of``), count it, show progress."""
     bar = tqdm(
         total=total,
         unit="file",
@@ -371,6 +477,7 @@ def _consume(stream, man: Manifest, report: CleanReport, total: int, progress) -
     try:
         for records in stream:
             for rec in records:
+                rec["camera"] = camera_of.get(rec["file"])
                 man.write(rec)
                 report.add(rec)
             bar.update(len(records))
