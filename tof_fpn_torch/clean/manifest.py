@@ -5,8 +5,12 @@ killed process leaves whole lines; a torn last line, which only a crash of the m
 leave, is skipped when read and closed with a newline before the next append). Kinds of lines:
 
 * ``{"event": "start", "run", "version", "engine", "jobs", "todo", "already_done", "pipeline",
-  "time"}``: a run starts (``pipeline``: the stages as measured, :func:`~.pipeline.describe`);
-* ``{"file", "status", ...}``: one per file and run. ``status`` is ``"done"`` (``outputs``,
+  "cameras", "time"}``: a run starts. ``cameras``: one ``{"key", "files", "pipeline"}`` per
+  camera group (:mod:`.cameras`; ``files``: how many, ``pipeline``: its stages as measured,
+  :func:`~.pipeline.describe`; ``note``: why nothing was measured, when so); ``pipeline``: the
+  one group's, ``null`` when the run has several;
+* ``{"file", "status", ...}``: one per file and run, ``camera`` the key of its camera group (a file
+  that failed when planned has none). ``status`` is ``"done"`` (``outputs``,
   ``frames``, ``read_s``, ``compute_s``, ``write_s`` in seconds, ``clamped``: valid pixels whose
   cleaned depth did not fit the stored dtype, ``input``: the inputs' sizes and modification times)
   or ``"failed"`` (``error``: the reason). A file is recorded done only after its outputs were
