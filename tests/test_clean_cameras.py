@@ -19,12 +19,12 @@ from PIL import Image
 
 from tof_fpn_torch import io as tio
 from tof_fpn_torch.clean import CleanConfig, clean
-from tof_fpn_torch.clean.cameras import UNKNOWN_SIZE, camera_groups, camera_key
+from tof_fpn_torch.clean.cameras import UNKNOWN_SIZE, UNMEASURED, camera_groups, camera_key
 from tof_fpn_torch.clean.manifest import read_manifest
 from tof_fpn_torch.clean.plan import plan_jobs
-from tof_fpn_torch.clean.run import UNMEASURED
 from tof_fpn_torch.clean.work import NoFramesError
 from tof_fpn_torch.cli import main
+from tof_fpn_torch.io.headers import frame_sizes
 from tof_fpn_torch.sim import add_depth_noise, synthetic_scene
 
 OFFICE = "adi_adtf3175/office_mode3_interleaved_512x512.bin"
@@ -110,6 +110,19 @@ def test_an_hdf5_file_of_several_sizes_names_them_all(tmp_path):
     assert camera_key(job, CleanConfig()) == "hdf5 4x6+8x10"
 
 
+def test_frame_sizes_reads_the_header_only(tmp_path):
+    x = np.zeros((3, 5, 7), np.uint16)
+    np.save(tmp_path / "a_depth.npy", x)
+    data = (tmp_path / "a_depth.npy").read_bytes()
+    (tmp_path / "a_depth.npy").write_bytes(data[: len(data) - x.nbytes + 10])  # pixels cut off
+    assert frame_sizes(tmp_path / "a_depth.npy") == [(5, 7)]
+    assert frame_sizes(tmp_path / "a_depth.bin") == []  # raw: no size in the file
+    assert frame_sizes(tmp_path / "a_depth.bin", height=4, width=6) == [(4, 6)]
+    assert frame_sizes(tmp_path / "b_depth_u16le_3x9.bin") == [(3, 9)]  # ADI: from the name
+    (tmp_path / "c_depth.png").write_bytes(b"not a png")
+    assert frame_sizes(tmp_path / "c_depth.png") == []
+
+
 # --- the real captures: each camera as if alone ---------------------------------------------------
 
 
@@ -183,8 +196,8 @@ def _striped_camera(folder: Path, n: int = 3) -> None:
 
 @pytest.fixture
 def two_cameras(tmp_path) -> Path:
-    """The clean camera's files first in file order: measured alone, as before cameras were
-    told apart, they would leave the striped camera's files uncleaned."""
+    """The clean camera's files first in file order: a stage measured on the first frames of the
+    whole folder (the clean camera's) would leave the striped camera's files uncleaned."""
     src = tmp_path / "in"
     _clean_camera(src)
     _striped_camera(src)

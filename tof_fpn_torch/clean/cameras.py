@@ -2,14 +2,15 @@
 
 A stage measured on data (``--stage auto``) is measured on one camera's frames and is right for
 that camera only: the stripes of another sensor are elsewhere, or absent. So a run splits its jobs
-into camera groups and measures and runs one pipeline per group. A job's group is named by a
-:func:`camera_key` found without decoding any frame:
+into camera groups and measures and runs one pipeline per group (:func:`build_cameras`). A job's
+group is named by a :func:`camera_key` found without decoding any frame:
 
 * the file format (:func:`~tof_fpn_torch.io.formats.format_for`): PNG, TIFF, ``.npy``, raw,
   ``.npz``, HDF5, the ADI vendor files;
-* the frame size: a PNG's header (Pillow, not decoded), a TIFF's first page header, a ``.npy``'s
-  header (in an ``.npz``: its ``depth.npy``), an HDF5 file's depth datasets (shapes only), an ADI
-  vendor file's name, raw files the configured ``height`` x ``width``;
+* the frame size its header states (:func:`~tof_fpn_torch.io.headers.frame_sizes`): a PNG's
+  header (not decoded), a TIFF's first page header, a ``.npy``'s header (in an ``.npz``: its
+  ``depth.npy``), an HDF5 file's depth datasets (shapes only), an ADI vendor file's name, raw
+  files the configured ``height`` x ``width``;
 * a recording container (an ``.mkv``, a bag) is one camera by itself: one group per file.
 
 A key reads ``"<format> <H>x<W>"`` (``"png 480x640"``), ``"<format> <file>"`` for a container
@@ -20,77 +21,29 @@ fails when it is read, with its reason).
 from __future__ import annotations
 
 import os
-import zipfile
+from dataclasses import dataclass
 
-import numpy as np
-
-from ..io.camera_files import vendor_name
-from ..io.formats import CAMERA_FILE, RECORDING, format_for
+from ..io.formats import RECORDING, format_for
+from ..io.headers import frame_sizes
 from .config import CleanConfig
+from .measure import finite_values
+from .pipeline import Calibration, CleanPipeline, build_pipeline, describe, stage_line
 from .plan import Job
+from .work import NoFramesError, read_jobs
 
-__all__ = ["UNKNOWN_SIZE", "camera_groups", "camera_key"]
+__all__ = [
+    "UNKNOWN_SIZE",
+    "UNMEASURED",
+    "Camera",
+    "build_cameras",
+    "camera_groups",
+    "camera_key",
+    "stage_lines",
+    "start_fields",
+]
 
 #: the size part of a key when the file's header cannot be read
 UNKNOWN_SIZE = "size unknown"
-
-
-def _npy_shape(fh) -> tuple[int, ...]:
-    """The shape in the header of an open ``.npy`` stream (the data are not read)."""
-    version = np.lib.format.read_magic(fh)
-    if version == (1, 0):
-        shape, _, _ = np.lib.format.read_array_header_1_0(fh)
-    elif version == (2, 0):
-        shape, _, _ = np.lib.format.read_array_header_2_0(fh)
-    else:  # 3.0: a utf-8 header, read by numpy's own reader
-        shape, _, _ = np.lib.format._read_array_header(fh, version)
-    return tuple(shape)
-
-
-def _hdf5_sizes(path: str) -> list[tuple[int, int]]:
-    """The frame sizes of the depth datasets of the groups holding depth and amplitude."""
-    import h5py
-
-    sizes: list[tuple[int, int]] = []
-    with h5py.File(path, "r") as f:
-        groups = [f]
-        f.visititems(lambda _, obj: groups.append(obj) if isinstance(obj, h5py.Group) else None)
-        for g in groups:
-            if "depth" in g and "amplitude" in g and isinstance(g["depth"], h5py.Dataset):
-                size = tuple(g["depth"].shape[-2:])
-                if size not in sizes:
-                    sizes.append(size)
-    return sizes
-
-
-def _sizes(job: Job, fmt, config: CleanConfig) -> list[tuple[int, int]]:
-    """The frame sizes the job's depth file states, read from headers only."""
-    path = job.depth
-    if fmt.holds == CAMERA_FILE:
-        v = vendor_name(os.path.basename(path))
-        return [(v.height, v.width)]
-    if fmt.name == "png":
-        from PIL import Image
-
-        with Image.open(path) as im:  # the header only: nothing is decoded
-            return [(im.height, im.width)]
-    if fmt.name == "tiff":
-        import tifffile
-
-        with tifffile.TiffFile(path) as tif:
-            page = tif.pages[0]
-            return [(int(page.imagelength), int(page.imagewidth))]
-    if fmt.name == "npy":
-        with open(path, "rb") as fh:
-            return [_npy_shape(fh)[-2:]]
-    if fmt.name == "npz":
-        with zipfile.ZipFile(path) as z, z.open("depth.npy") as fh:
-            return [_npy_shape(fh)[-2:]]
-    if fmt.name == "hdf5":
-        return _hdf5_sizes(path)
-    if fmt.needs_size and config.height is not None and config.width is not None:
-        return [(int(config.height), int(config.width))]
-    return []
 
 
 def camera_key(job: Job, config: CleanConfig) -> str:
@@ -102,11 +55,7 @@ def camera_key(job: Job, config: CleanConfig) -> str:
         return f"{os.path.splitext(job.depth)[1].lower() or 'file'} {UNKNOWN_SIZE}"
     if fmt.holds == RECORDING:
         return f"{fmt.name} {job.name}"
-    try:
-        sizes = [tuple(int(n) for n in s) for s in _sizes(job, fmt, config)]
-    except Exception:  # noqa: BLE001 -- a header that cannot be read: the reader says why later
-        sizes = []
-    sizes = [s for s in sizes if len(s) == 2]
+    sizes = frame_sizes(job.depth, height=config.height, width=config.width)
     if not sizes:
         return f"{fmt.name} {UNKNOWN_SIZE}"
     return f"{fmt.name} " + "+".join(f"{h}x{w}" for h, w in sizes)
@@ -122,3 +71,96 @@ def camera_groups(jobs: list[Job], config: CleanConfig) -> list[tuple[str, list[
         if job.error is None:
             groups.setdefault(camera_key(job, config), []).append(job)
     return list(groups.items())
+
+
+def _calibration(jobs, config: CleanConfig) -> Calibration:
+    """The first ``calibration_frames`` readable frames (of the first readable frame's shape,
+    frames with no valid pixel left out), and the camera the files name."""
+    return Calibration(*read_jobs(jobs, config, config.calibration_frames))
+
+
+#: a camera group whose files hold no frame to measure on (others do): it gets no stage
+UNMEASURED = (
+    "no readable frame with a valid pixel to measure on; its frames pass as they are "
+    "(files that cannot be read fail)"
+)
+
+
+@dataclass
+class Camera:
+    """One camera group of a run (:func:`camera_groups`) and its pipeline.
+
+    Attributes:
+        key: the group's camera key (None: the run has no runnable file).
+        jobs: its runnable jobs, in file order.
+        pipeline: the stages its files run through, measured on its own frames.
+        unmeasured: why nothing was measured (:data:`UNMEASURED`), else None.
+    """
+
+    key: str | None
+    jobs: list
+    pipeline: CleanPipeline
+    unmeasured: str | None = None
+
+    @property
+    def stages_off(self) -> bool:
+        """No stage and nothing measured: every stage switched off."""
+        p = self.pipeline
+        return p.calibration is None and not [*p.stages, *p.sequence]
+
+    def record(self) -> dict:
+        """The group in the manifest's ``start`` record: ``key``, ``files`` (how many),
+        ``pipeline`` (:func:`~.pipeline.describe`), ``note`` when nothing was measured."""
+        rec = {"key": self.key, "files": len(self.jobs), "pipeline": describe(self.pipeline)}
+        if self.unmeasured:
+            rec["note"] = self.unmeasured
+        return finite_values(rec)
+
+
+def build_cameras(jobs, config: CleanConfig) -> list[Camera]:
+    """One :class:`Camera` per camera group of ``jobs``, each pipeline measured on the first
+    readable frames of its own files. With several groups, a group none of whose files has a
+    frame to measure on gets no stage (its frames pass as they are, :data:`UNMEASURED`).
+    :class:`~.work.NoFramesError`, with every file's reason in file order (the jobs that failed
+    planning too), when no group has one."""
+    groups = camera_groups(jobs, config)
+    if len(groups) <= 1:
+        key, members = groups[0] if groups else (None, [])
+        return [Camera(key, members, build_pipeline(config, lambda: _calibration(jobs, config)))]
+    cameras, failures = [], []
+    for key, members in groups:
+        try:
+            pipeline = build_pipeline(config, lambda m=members: _calibration(m, config))
+        except NoFramesError as exc:
+            failures += exc.failures
+            cameras.append(Camera(key, members, CleanPipeline(), UNMEASURED))
+        else:
+            cameras.append(Camera(key, members, pipeline))
+    if all(c.unmeasured for c in cameras):
+        failures += [(j.name, j.error) for j in jobs if j.error is not None]
+        order = {j.name: i for i, j in enumerate(jobs)}
+        raise NoFramesError(sorted(failures, key=lambda f: order.get(f[0], len(order))))
+    return cameras
+
+
+def stage_lines(cameras: list[Camera], stage: str) -> str:
+    """What the command prints of the stages: one camera's :func:`~.pipeline.stage_line`, or,
+    for several cameras, one line per camera, ``camera <key> (<n> file(s)): <its stage line>``."""
+    if len(cameras) == 1:
+        return stage_line(describe(cameras[0].pipeline), stage)
+    lines = []
+    for c in cameras:
+        line = (
+            f"stage {stage}: nothing measured ({c.unmeasured})"
+            if c.unmeasured
+            else stage_line(describe(c.pipeline), stage)
+        )
+        lines.append(f"camera {c.key} ({len(c.jobs)} file(s)): {line}")
+    return "\n".join(lines)
+
+
+def start_fields(cameras: list[Camera]) -> dict:
+    """The manifest's ``start`` record fields of the cameras: ``cameras`` (each
+    :meth:`Camera.record`) and ``pipeline``, the one camera's (None with several)."""
+    one = finite_values(describe(cameras[0].pipeline)) if len(cameras) == 1 else None
+    return {"pipeline": one, "cameras": [c.record() for c in cameras if c.key is not None]}

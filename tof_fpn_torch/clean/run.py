@@ -30,12 +30,11 @@ import torch
 from tqdm import tqdm
 
 from .. import __version__
-from .cameras import camera_groups
+from .cameras import Camera, build_cameras, stage_lines, start_fields
 from .config import CleanConfig, config_to_toml, load_config
 from .figure import report_figure
 from .manifest import Manifest, finished, now, read_manifest
-from .measure import finite_values, summarise
-from .pipeline import Calibration, CleanPipeline, build_pipeline, describe, stage_line
+from .measure import summarise
 from .plan import (
     LOCK,
     MANIFEST,
@@ -47,18 +46,8 @@ from .plan import (
     remove_stale_temporaries,
 )
 from .steps import steps
-from .work import NoFramesError, read_jobs
 
-__all__ = [
-    "ENGINES",
-    "UNMEASURED",
-    "Camera",
-    "CleanReport",
-    "build_cameras",
-    "clean",
-    "resolve_device",
-    "stage_lines",
-]
+__all__ = ["ENGINES", "CleanReport", "clean", "resolve_device"]
 
 ENGINES = ("local", "ray")
 #: failed files listed by :meth:`CleanReport.summary` (all are in the manifest)
@@ -141,88 +130,6 @@ def resolve_device(device: str | torch.device = "auto") -> torch.device:
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"device {device!r}: no CUDA device here; use 'cpu' or 'auto'")
     return dev
-
-
-def _calibration(jobs, config: CleanConfig) -> Calibration:
-    """The first ``calibration_frames`` readable frames (of the first readable frame's shape,
-    frames with no valid pixel left out), and the camera the files name."""
-    return Calibration(*read_jobs(jobs, config, config.calibration_frames))
-
-
-#: a camera group whose files hold no frame to measure on (others do): it gets no stage
-UNMEASURED = (
-    "no readable frame with a valid pixel to measure on; its frames pass as they are "
-    "(files that cannot be read fail)"
-)
-
-
-@dataclass
-class Camera:
-    """One camera group of a run (:func:`~.cameras.camera_groups`) and its pipeline.
-
-    Attributes:
-        key: the group's camera key (None: the run has no runnable file).
-        jobs: its runnable jobs, in file order.
-        pipeline: the stages its files run through, measured on its own frames.
-        unmeasured: why nothing was measured (:data:`UNMEASURED`), else None.
-    """
-
-    key: str | None
-    jobs: list
-    pipeline: CleanPipeline
-    unmeasured: str | None = None
-
-    def record(self) -> dict:
-        """The group in the manifest's ``start`` record: ``key``, ``files`` (how many),
-        ``pipeline`` (:func:`~.pipeline.describe`), ``note`` when nothing was measured."""
-        rec = {"key": self.key, "files": len(self.jobs), "pipeline": describe(self.pipeline)}
-        if self.unmeasured:
-            rec["note"] = self.unmeasured
-        return finite_values(rec)
-
-
-def build_cameras(jobs, config: CleanConfig) -> list[Camera]:
-    """One :class:`Camera` per camera group of ``jobs``, each pipeline measured on the first
-    readable frames of its own files. A folder of one camera is measured as a whole, as before
-    cameras were told apart (the jobs that failed planning name their reason in a
-    :class:`~.work.NoFramesError`). With several groups, a group none of whose files has a frame to
-    measure on gets no stage (its frames pass as they are, :data:`UNMEASURED`);
-    :class:`~.work.NoFramesError`, with every file's reason in file order, when no group has
-    one."""
-    groups = camera_groups(jobs, config)
-    if len(groups) <= 1:
-        key, members = groups[0] if groups else (None, [])
-        return [Camera(key, members, build_pipeline(config, lambda: _calibration(jobs, config)))]
-    cameras, failures = [], []
-    for key, members in groups:
-        try:
-            pipeline = build_pipeline(config, lambda m=members: _calibration(m, config))
-        except NoFramesError as exc:
-            failures += exc.failures
-            cameras.append(Camera(key, members, CleanPipeline(), UNMEASURED))
-        else:
-            cameras.append(Camera(key, members, pipeline))
-    if all(c.unmeasured for c in cameras):
-        failures += [(j.name, j.error) for j in jobs if j.error is not None]
-        order = {j.name: i for i, j in enumerate(jobs)}
-        raise NoFramesError(sorted(failures, key=lambda f: order.get(f[0], len(order))))
-    return cameras
-
-
-def stage_lines(cameras: list[Camera], stage: str) -> str:
-    """What the command prints of the stages: one camera's :func:`~.pipeline.stage_line`, or,
-    for several cameras, one line per camera, ``camera <key> (<n> file(s)): <its stage line>``."""
-    if len(cameras) == 1:
-        return stage_line(describe(cameras[0].pipeline), stage)
-    lines = []
-    for c in cameras:
-        line = (
-            f"stage {stage}: nothing measured ({c.unmeasured})"
-            if c.unmeasured
-            else stage_line(describe(c.pipeline), stage)
-        )
-        lines.append(f"camera {c.key} ({len(c.jobs)} file(s)): {line}")
-    return "\n".join(lines)
 
 
 @contextlib.contextmanager
@@ -346,10 +253,7 @@ def clean(
         c.pipeline.to(run.device)
     report = CleanReport(output, jobs=len(jobs), created=not os.path.isdir(output))
     report.stage = stage_lines(cameras, config.stage)
-    report.stages_off = all(
-        c.pipeline.calibration is None and not [*c.pipeline.stages, *c.pipeline.sequence]
-        for c in cameras
-    )
+    report.stages_off = all(c.stages_off for c in cameras)
     os.makedirs(output, exist_ok=True)
     with output_lock(output):  # one run per OUTPUT at a time
         _saved_config(output, config)
@@ -378,11 +282,11 @@ def _run(output, config, jobs, cameras: list[Camera], report: CleanReport, run: 
     remove_stale_temporaries(output)
     report.already_done = len(done)
     groups = [
-        (g, {j.name for j in g} - done, i)
+        (g, todo, i)
         for i, c in enumerate(cameras)
         for g in groups_of(c.jobs, config.batch)
+        if (todo := {j.name for j in g} - done)
     ]
-    groups = [(g, todo, i) for g, todo, i in groups if todo]
     camera_of = {j.name: c.key for c in cameras for j in c.jobs}
     token = f"{os.getpid()}-{secrets.token_hex(4)}"
     t0 = time.perf_counter()
@@ -393,11 +297,7 @@ def _run(output, config, jobs, cameras: list[Camera], report: CleanReport, run: 
                 "event": "start", "run": token, "version": __version__, "engine": run.engine,
                 "workers": run.workers, "device": str(run.device), "jobs": len(jobs),
                 "todo": todo, "already_done": len(done),
-                "pipeline": (
-                    finite_values(describe(cameras[0].pipeline)) if len(cameras) == 1 else None
-                ),
-                "cameras": [c.record() for c in cameras if c.key is not None],
-                "time": now(),
+                **start_fields(cameras), "time": now(),
             }
         )  # fmt: skip
         for job in jobs:
@@ -445,8 +345,7 @@ def _checked(config, engine: str, workers) -> CleanConfig:
 
 
 def _engine_stream(run: _Execution, groups, pipelines, config, **kw):
-    """The records of the groups (each ``(jobs, todo, camera)``, run through
-    ``pipelines[camera]``), from the local or the Ray engine."""
+    """The records of the groups ``(jobs, todo, camera)``, from the local or the Ray engine."""
     if run.engine == "local":
         from .local import run_local
 
@@ -462,9 +361,7 @@ def _engine_stream(run: _Execution, groups, pipelines, config, **kw):
     )  # fmt: skip
 
 
-def _consume(
-    stream, man: Manifest, report: CleanReport, total: int, progress, camera_of: dict
-) -> None:
+def _consume(stream, man: Manifest, report: CleanReport, total: int, progress, camera_of) -> None:
     """Append each record to the manifest as its file lands (with its ``camera``, the key of
     its camera group, from ``camera_of``), count it, show progress."""
     bar = tqdm(
