@@ -17,6 +17,7 @@ from tof_fpn_torch.runtime import (
     FixedPatternCorrection,
     FlyingPixels,
     FPNSuppression,
+    PatternCorrection,
     TemporalSequence,
 )
 from tof_fpn_torch.runtime.stage import RecordOutputs, Setting, Stage, check_settings
@@ -36,6 +37,18 @@ STAGES = {
     ),
     "complex pattern": lambda: ComplexPatternCorrection(
         torch.full((W,), 0.5), torch.full((W,), -0.3), modulation_frequency_hz=20e6
+    ),
+    "pattern (offsets)": lambda: PatternCorrection(
+        [FixedPatternCorrection(0.002 * torch.cos(math.pi * torch.arange(W)), height=H)]
+    ),
+    "pattern (offsets, read-out)": lambda: PatternCorrection(
+        [
+            FixedPatternCorrection(0.002 * torch.cos(math.pi * torch.arange(W)), height=H),
+            ComplexPatternCorrection(
+                torch.full((W,), 0.5), torch.full((W,), -0.3), modulation_frequency_hz=20e6
+            ),
+        ],
+        learned='{"frames": 6}',
     ),
     "temporal": lambda: TemporalSequence(sigma=0.002, noise_k=0.5, persistence=2),
     **{f"flying ({a})": (lambda a=a: FlyingPixels(a)) for a in ("mark", "invalidate", "reassign")},

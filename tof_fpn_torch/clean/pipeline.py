@@ -162,7 +162,7 @@ def build_pipeline(
     for step in steps():
         if step.keep_maps is not None and pipeline.stage(step.name) is not None:
             pipeline.keep_maps[step.name] = tuple(step.keep_maps(config))
-    if measured:
+    if measured and "raw" in cache:
         c = cache["raw"]
         pipeline.calibration = {"frames": int(c.depth.shape[0]), "camera": c.camera}
     pipeline.eval()

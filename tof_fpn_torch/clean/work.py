@@ -34,6 +34,7 @@ from ..io.encode import encode_depth
 from ..io.stored import FrameSet, frame_set_tensors, read_frame_sets, write_like
 from ..runtime import valid_mask
 from .config import CleanConfig
+from .errors import NoFramesError
 from .manifest import input_identity, now
 from .measure import file_report, finite_values, too_thin
 from .plan import Job, temporary
@@ -52,21 +53,6 @@ __all__ = [
 
 #: the ``note`` of a file whose frames are one pixel wide or high (copied as they are)
 THIN_NOTE = "1-pixel-wide frame: copied"
-
-
-class NoFramesError(ValueError):
-    """INPUT has no readable frame with a valid pixel to measure a data-driven stage on.
-
-    Attributes:
-        failures: ``(file, reason)`` of every file of INPUT, in order, saying why it gave none.
-    """
-
-    HEADLINE = "no readable frame with a valid pixel in INPUT"
-
-    def __init__(self, failures: list[tuple[str, str]]) -> None:
-        self.failures = list(failures)
-        detail = "; ".join(f"{name}: {why}" for name, why in self.failures)
-        super().__init__(f"{self.HEADLINE} ({detail})" if detail else self.HEADLINE)
 
 
 @dataclass

@@ -30,7 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=DOMAINS,
         default="depth",
         help="depth: offsets of the depth (default); complex: read-out offsets of the complex "
-        "signal, which enter the depth as 1 / amplitude (needs --modulation-frequency)",
+        "signal, which enter the depth as 1 / amplitude (needs --modulation-frequency); scenes: "
+        "the pattern frames of different scenes share, as clean learns it (no flat wall needed)",
     )
     p.add_argument("--flat-field", action="store_true", help="depth: per-pixel offsets too")
     p.add_argument("--rows", action="store_true", help="complex: row offsets too")
@@ -57,6 +58,10 @@ def run(args: argparse.Namespace) -> int:
         flat_field=args.flat_field,
         modulation_frequency_hz=args.modulation_frequency,
     )
+    if args.domain == "scenes":
+        print(f"{pattern.summary()}; wrote {args.pattern}")
+        print(f"apply it with: tof-fpn clean INPUT OUTPUT --pattern {args.pattern}")
+        return 0
     h, w = pattern.shape
     if args.domain == "depth":
         col = 1e3 * float(pattern.column_offset.std())

@@ -80,6 +80,11 @@ def add_option(group, option: Option | TableOption) -> None:
             const=on,
             help=s.help if on else f"turn off {s.help}",
         )
+        if s.default is None:  # decided by a preset: both ways can be asked for
+            group.add_argument(
+                f"--no-{flag}", dest=option.name, action="store_const", const=False,
+                help=f"turn off {s.help.split(' (default')[0]}",
+            )  # fmt: skip
         return
     choices = option.cli_choices() if option.cli_choices is not None else (s.choices or None)
     group.add_argument(

@@ -8,7 +8,11 @@ and ``meta_json`` (uint8, the UTF-8 JSON of the pattern's other fields, with its
   (ones when not calibrated), ``column_se`` (W,);
 - complex domain (``tof_fpn_torch.complex_pattern/1``): ``column_offset_re``,
   ``column_offset_im`` (W,), ``row_offset_re``, ``row_offset_im`` (H,) (zeros when not
-  calibrated), ``column_pixels`` (W,).
+  calibrated), ``column_pixels`` (W,);
+- learned from a folder (``tof_fpn_torch.learned_pattern/1``): ``column_offset`` (W,),
+  ``row_offset`` (H,), ``pixel_offset`` (H, W) (zeros when not kept), ``readout_re``,
+  ``readout_im`` (W,) (the column read-out offset, zeros when none; ``modulation_frequency_hz`` in
+  the metadata).
 
 This module owns the format and speaks plain tensors: :func:`write_pattern_file` takes the arrays
 and the metadata, :func:`read_pattern_file` returns them (float64 CPU tensors and a dict);
@@ -43,11 +47,19 @@ PATTERN_FORMATS: dict[str, tuple[str, str, tuple[str, ...]]] = {
         "complex-pattern",
         ("column_offset_re", "column_offset_im", "row_offset_re", "row_offset_im"),
     ),
+    "learned": (
+        "tof_fpn_torch.learned_pattern/1",
+        "learned-pattern",
+        ("column_offset", "row_offset", "pixel_offset", "readout_re", "readout_im"),
+    ),
 }
 
 
 def _kind_of(names) -> str:
-    """The kind of an archive from the arrays it holds (complex ones have ``column_offset_re``)."""
+    """The kind of an archive from the arrays it holds (complex ones have ``column_offset_re``,
+    learned ones ``readout_re``)."""
+    if "readout_re" in names:
+        return "learned"
     return "complex" if "column_offset_re" in names else "fixed"
 
 
@@ -56,7 +68,7 @@ def write_pattern_file(path, kind: str, arrays: dict[str, torch.Tensor], meta: d
 
     Args:
         path: the ``.npz`` to write.
-        kind: ``"fixed"`` (depth domain) or ``"complex"``.
+        kind: ``"fixed"`` (depth domain), ``"complex"`` or ``"learned"``.
         arrays: name -> tensor, stored as float64 (the arrays of the kind, and any others).
         meta: the JSON-able scalar fields; ``format`` is set from ``kind``.
     """
@@ -75,7 +87,7 @@ def write_pattern_file(path, kind: str, arrays: dict[str, torch.Tensor], meta: d
 
 
 def read_pattern_file(path) -> tuple[str, dict[str, torch.Tensor], dict]:
-    """``(kind, arrays, meta)`` of a pattern file: ``"fixed"`` or ``"complex"``, the arrays as
+    """``(kind, arrays, meta)`` of a pattern file: ``"fixed"``, ``"complex"`` or ``"learned"``, the arrays as
     float64 CPU tensors (``meta_json`` decoded into ``meta``, ``format`` included).
 
     Raises:

@@ -13,6 +13,7 @@ and :mod:`tof_fpn_torch.build` (one layer up), which call into this package, nev
 - :mod:`.suppression`: :class:`FPNSuppression` (filter + fusion).
 - :mod:`.destripe`: :func:`destripe`, :class:`Destripe` (broadband column / row offsets, one frame).
 - :mod:`.fixed_pattern`: :class:`FixedPatternCorrection` (a calibrated fixed pattern, as buffers).
+- :mod:`.pattern_correction`: :class:`PatternCorrection` (a pattern's corrections in order).
 - :mod:`.complex_pattern`: :class:`ComplexPatternCorrection` (a calibrated complex-domain pattern).
 - :mod:`.temporal`: :func:`temporal_filter`, :class:`TemporalFilter` (recordings: a causal
   recursive filter with a motion guard, its state passed in and out).
@@ -30,6 +31,7 @@ from .fixed_pattern import FixedPatternCorrection
 from .flying import FlyingPixels, flying_pixels
 from .fpn_filter import FPNFilter, fpn_filter
 from .fusion import AmplitudeFusion, amplitude_fusion, amplitude_weight
+from .pattern_correction import PatternCorrection
 from .suppression import FPNSuppression
 from .temporal import TemporalFilter, promised_noise_factor, temporal_filter, temporal_state
 from .temporal_sequence import TemporalSequence
@@ -43,6 +45,7 @@ __all__ = [
     "FPNFilter",
     "FPNSuppression",
     "FixedPatternCorrection",
+    "PatternCorrection",
     "TemporalFilter",
     "TemporalSequence",
     "FlyingPixels",

@@ -1,13 +1,22 @@
-"""``--pattern FILE``: a fixed pattern of ``tof-fpn calibrate``, removed from every frame first
-(:class:`~tof_fpn_torch.runtime.FixedPatternCorrection` or
-:class:`~tof_fpn_torch.runtime.ComplexPatternCorrection`); the stages after it, and their
-measurement on the calibration frames, see what it leaves."""
+"""The camera's fixed pattern, removed from every frame first: ``--pattern FILE`` (a pattern of
+``tof-fpn calibrate``, :class:`~tof_fpn_torch.runtime.FixedPatternCorrection` or
+:class:`~tof_fpn_torch.runtime.ComplexPatternCorrection`), else (``learn``, the default) the
+pattern the folder's own frames share, learned from the calibration frames of different scenes
+(:func:`~tof_fpn_torch.analysis.learn_folder_pattern`; only the parts two halves of the scenes
+confirm, nothing for a still scene or a single frame, and the stage line says which). The stages
+after it, and their measurement on the calibration frames, see what it leaves."""
 
 from __future__ import annotations
 
+import json
+
+import torch
 from torch import nn
 
+from ...analysis.folder_pattern import learn_folder_pattern
+from ...runtime import PatternCorrection
 from ...runtime.stage import Setting
+from ..errors import NoFramesError
 from ..pattern_file import load_pattern
 from .base import Context, Option, Step
 
@@ -18,19 +27,62 @@ def _resolve(values: dict) -> None:
     p = values["pattern"]
     if p is not None and (not isinstance(p, str) or not p):
         raise ValueError(f"pattern must be a file name or absent, got {p!r}")
+    if values["learn"] is None:  # the stage preset's: auto learns, paper is the paper's stage
+        values["learn"] = values["stage"] == "auto"
 
 
 def _build(ctx: Context) -> nn.Module | None:
     path = ctx.config.pattern
-    return None if path is None else load_pattern(path)
+    given = None if path is None else load_pattern(path)
+    if isinstance(given, PatternCorrection):  # a learned pattern saved by tof-fpn calibrate
+        given.source = "file"
+    if not ctx.config.learn:
+        return given
+    try:
+        c = ctx.frames()
+    except NoFramesError as exc:
+        ctx.note(f"no fixed pattern learned: {exc}")
+        return given
+    except ValueError:  # a pipeline built without calibration frames
+        ctx.note("no fixed pattern learned: no calibration frames were given")
+        return given
+    depth = c.depth
+    if given is not None:  # learn what the given pattern leaves
+        with torch.no_grad():
+            depth = given(depth, c.amplitude)
+    learned = learn_folder_pattern(depth, c.amplitude)
+    ctx.note(learned.summary())
+    if learned.pattern is None:
+        return given
+    module = learned.module()
+    if given is None:
+        return module
+    return PatternCorrection(
+        [given, *module.corrections], source="file+learned", learned=module.learned
+    )
 
 
 def _describe(module: nn.Module | None) -> dict:
-    return {"pattern": None if module is None else type(module).__name__}
+    if module is None:
+        return {"pattern": None}
+    if isinstance(module, PatternCorrection):
+        out = {"pattern": module.source}
+        if module.learned:
+            out["learned"] = json.loads(module.learned)
+        return out
+    return {"pattern": type(module).__name__}
 
 
 def _phrase(info: dict) -> list[str]:
-    return [] if info.get("pattern") is None else [f"fixed pattern ({info['pattern']})"]
+    if info.get("pattern") is None:
+        return []
+    if info["pattern"] == "learned":
+        return ["the fixed pattern the frames share"]
+    if info["pattern"] == "file":
+        return ["the pattern file (learned from scenes)"]
+    if info["pattern"] == "file+learned":
+        return ["the pattern file, then the fixed pattern the frames still share"]
+    return [f"fixed pattern ({info['pattern']})"]
 
 
 STEP = Step(
@@ -41,6 +93,17 @@ STEP = Step(
             "pipeline",
             "pattern",
             path=True,
+        ),
+        Option(
+            Setting(
+                "learn",
+                bool,
+                None,
+                "learn the fixed pattern the frames share, without --pattern (default: with "
+                "--stage auto)",
+            ),
+            "pipeline",
+            "learn",
         ),
     ),
     build=_build,

@@ -1,0 +1,171 @@
+"""The fixed pattern learned from a camera's frames of different scenes
+(:func:`tof_fpn_torch.analysis.learn_folder_pattern`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from tof_fpn_torch.analysis import folder_pattern as fp
+from tof_fpn_torch.analysis import learn_folder_pattern
+
+H, W = 72, 96
+
+
+def scene(rng: np.random.Generator) -> np.ndarray:
+    """A piecewise-planar scene in metres: two planes meeting in a kink (a room corner seen at a
+    random place and angle), plus a box with a depth edge; every pose different."""
+    y, x = np.mgrid[0:H, 0:W].astype(float)
+    x0 = rng.uniform(0.2, 0.8) * W
+    base = rng.uniform(1.5, 3.0)
+    s1, s2 = rng.uniform(-0.02, 0.02, 2)
+    sy = rng.uniform(-0.01, 0.01)
+    z = base + np.where(x < x0, s1 * (x - x0), s2 * (x - x0)) + sy * (y - H / 2)
+    bx, by = rng.integers(0, W - 20), rng.integers(0, H - 20)
+    z[by : by + 20, bx : bx + 20] -= rng.uniform(0.2, 0.6)
+    return z
+
+
+def folder(n: int, pattern: np.ndarray, noise_m: float, seed: int, still: bool = False):
+    rng = np.random.default_rng(seed)
+    first = scene(rng)
+    truth = np.stack([first if still else scene(rng) for _ in range(n)])
+    noisy = truth + pattern[None] + rng.normal(0, noise_m, truth.shape)
+    return torch.from_numpy(noisy)[:, None], torch.from_numpy(truth)[:, None]
+
+
+def columns(seed: int, sd: float) -> np.ndarray:
+    c = np.random.default_rng(seed).normal(0, sd, W)
+    return np.broadcast_to(c - c.mean(), (H, W)).copy()
+
+
+def gain_db(noisy, truth, pattern_est) -> list[float]:
+    out = []
+    for i in range(noisy.shape[0]):
+        e_in = (noisy[i, 0] - truth[i, 0]).numpy()
+        e_out = e_in - pattern_est
+        out.append(20 * math.log10(np.sqrt(np.mean(e_in**2)) / np.sqrt(np.mean(e_out**2))))
+    return out
+
+
+def test_column_offsets_are_learned_from_different_scenes():
+    pattern = columns(1, 0.003)
+    d, t = folder(8, pattern, 0.002, seed=2)
+    learned = learn_folder_pattern(d)
+    assert learned.pattern is not None, learned.reason
+    assert learned.scenes == 8
+    est = learned.pattern.offset_map().numpy()
+    assert np.corrcoef(est.ravel(), pattern.ravel())[0, 1] > 0.95
+    # the oracle gains 20 log10(sqrt(3^2 + 2^2) / 2) = 5.1 dB per frame
+    gains = gain_db(d, t, est)
+    assert min(gains) > 3.5, gains
+    assert learned.parts["columns"]["factor"] > 0.9
+    assert learned.parts["pixels"]["factor"] == 0.0  # none there: not applied
+    assert "columns" in learned.summary() and "8 scenes" in learned.summary()
+
+
+def test_a_per_pixel_map_is_learned():
+    rng = np.random.default_rng(5)
+    pattern = rng.normal(0, 0.003, (H, W))
+    pattern -= pattern.mean()
+    d, t = folder(8, pattern, 0.002, seed=6)
+    learned = learn_folder_pattern(d)
+    assert learned.pattern is not None, learned.reason
+    assert learned.parts["pixels"]["factor"] > 0.5
+    gains = gain_db(d, t, learned.pattern.offset_map().numpy())
+    assert min(gains) > 2.0, gains
+
+
+def test_no_pattern_learns_nothing_and_says_why():
+    d, _ = folder(8, np.zeros((H, W)), 0.002, seed=3)
+    learned = learn_folder_pattern(d)
+    assert learned.pattern is None
+    assert "halves" in learned.reason
+    assert "no fixed pattern learned from 8 frame(s)" in learned.summary()
+
+
+def test_a_still_scene_is_not_taken_for_a_pattern():
+    d, _ = folder(8, columns(1, 0.003), 0.002, seed=4, still=True)
+    learned = learn_folder_pattern(d)
+    assert learned.pattern is None
+    assert learned.scenes == 1
+    assert "still scene" in learned.reason
+
+
+def test_invalid_pixels_are_left_out():
+    pattern = columns(7, 0.003)
+    d, t = folder(8, pattern, 0.002, seed=8)
+    whole = learn_folder_pattern(d).pattern.offset_map().numpy()
+    holes = torch.rand(d.shape, generator=torch.Generator().manual_seed(0)) < 0.05
+    d = d.clone()
+    d[:4][holes[:4]] = 0.0
+    d[4:][holes[4:]] = float("nan")
+    learned = learn_folder_pattern(d)
+    assert learned.pattern is not None
+    est = learned.pattern.offset_map().numpy()
+    assert np.isfinite(est).all()
+    # 5 % holes (a hole takes three second differences per axis with it) cost little
+    corr = [np.corrcoef(e.ravel(), pattern.ravel())[0, 1] for e in (est, whole)]
+    assert corr[0] > 0.88 and corr[0] > corr[1] - 0.02, corr
+
+
+def test_the_noise_model_follows_one_over_amplitude():
+    """Depth noise ``k / A`` (low sensing): the per-frame ``k`` is found from the frame itself,
+    edges and all."""
+    rng = np.random.default_rng(10)
+    truth = np.stack([scene(rng) for _ in range(3)]) * 1000  # mm
+    amp = rng.uniform(20, 400, truth.shape)
+    k = np.array([400.0, 800.0, 1600.0])[:, None, None]
+    noisy = torch.from_numpy(truth + rng.normal(0, 1.0, truth.shape) * k / amp)
+    var = fp._noise_var(noisy, torch.from_numpy(amp)).numpy()
+    k_est = np.sqrt(var * amp**2)[:, 0, 0]
+    np.testing.assert_allclose(k_est, k[:, 0, 0], rtol=0.1)
+    # without amplitudes: one level per frame
+    flat = fp._noise_var(noisy, None).numpy()
+    assert np.ptp(flat[0]) == 0 and flat[2, 0, 0] > 3 * flat[0, 0, 0]
+
+
+def test_profile_solves_the_least_squares_problem():
+    """The first (least-squares) iteration against NumPy's lstsq of the same objective."""
+    rng = np.random.default_rng(11)
+    d = torch.from_numpy(rng.normal(0, 1, (3, 5, 9)))
+    var = torch.from_numpy(rng.uniform(0.5, 2, (3, 5, 9)))
+    got = fp._profile(d, var, -1, iterations=1).numpy()
+    e = np.asarray(fp._d2(d, -1))
+    s2 = np.asarray(fp._d2_var(var, -1))
+    k2 = np.asarray(fp._d2(torch.eye(9, dtype=torch.float64), 0))
+    rows, rhs = [], []
+    for i in range(3):
+        for y in range(5):
+            for x in range(7):
+                rows.append(k2[x] / np.sqrt(s2[i, y, x]))
+                rhs.append(e[i, y, x] / np.sqrt(s2[i, y, x]))
+    cnt = (1 / s2).sum((0, 1))
+    lam = 1e-2 * float(np.median(cnt))
+    a = np.vstack([np.array(rows), np.sqrt(lam) * np.eye(9)])
+    b = np.concatenate([rhs, np.zeros(9)])
+    want = np.linalg.lstsq(a, b, rcond=None)[0]
+    np.testing.assert_allclose(got, want - want.mean(), atol=1e-10)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        (dict(depth=torch.ones(3, 4, 4)), "depth must be a"),
+        (dict(depth=torch.ones(3, 1, 4, 4, dtype=torch.int32)), "floating point"),
+        (dict(depth=torch.ones(3, 1, 4, 4), amplitude=torch.ones(3, 1, 4, 5)), "amplitude"),
+        (dict(depth=torch.ones(3, 1, 4, 4), min_scenes=1), "min_scenes"),
+        (dict(depth=torch.ones(3, 1, 4, 4), min_z=0), "min_z"),
+    ],
+)
+def test_bad_arguments_are_refused(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        learn_folder_pattern(**kwargs)
+
+
+def test_tiny_frames_learn_nothing():
+    learned = learn_folder_pattern(torch.rand(6, 1, 2, 50) + 1)
+    assert learned.pattern is None and "too small" in learned.reason

@@ -1,0 +1,682 @@
+r"""A camera's fixed pattern learned from its own frames of different scenes.
+
+Every frame ``i`` of one camera's folder is ``D_i = S_i + P + n_i``: a scene ``S_i`` that changes
+from frame to frame, the camera's fixed pattern ``P`` (the same in every frame) and noise. The
+pattern is modelled as column, row and pixel offsets,
+
+    ``P(y, x) = c(x) + r(y) + p(y, x)``,
+
+and estimated under one assumption about scenes: they are piecewise smooth, so their second
+differences along a row or a column are small except at edges and kinks, while a fixed pattern's
+are not. Per part, in order (columns, then rows on what the columns leave, then pixels on what both
+leave), the pattern is the maximum a-posteriori estimate
+
+    ``min_P  sum_i sum rho((D2 (D_i - P)) / s_i) + |P|^2 / sigma_P^2``
+
+with ``D2`` the second difference along x (columns) or along x and y (pixels), ``s_i`` the noise
+of a second difference (a per-frame ``k_i / A`` model fitted from the data, or one level per frame
+without amplitudes), ``rho`` quadratic first and then Tukey's biweight (edges, kinks and flying
+pixels get weight 0), and the white prior's ``sigma_P^2`` re-estimated from the solution (an
+empirical Bayes iteration: without a pattern it goes to zero). The profiles are solved exactly
+(a pentadiagonal system), the pixel part by conjugate gradients.
+
+What a scene can never be told apart from is left out: a smooth pattern (the low frequencies,
+shrunk by the prior) and anything every frame shares because every frame shows the same scene.
+Frames of one scene are found first (two frames whose difference is white noise, the pattern
+cancelling in it, show one scene: :data:`SAME_SCENE`) and averaged; with fewer than
+:data:`MIN_SCENES` scenes nothing is learned (a still camera: its scene would be taken for the
+pattern).
+
+**Evidence.** The scenes are split into two halves (alternating) and each part is learned on each
+half alone. A part is kept only when the halves agree: ``z = <a, b> / (sqrt(n) v)`` of at least
+:data:`MIN_Z` (``v``: the halves' error variance ``mean((a - b)^2) / 2``, ``n`` the part's
+values) -- a scene's structure that is not in every frame falls apart between the halves, noise
+does not correlate. The kept part is scaled by ``S / (S + v / 2)`` (``S = <a, b> / n``: the
+pattern's power the halves share; the Wiener factor of the whole folder's estimate).
+
+References: the second-difference (smoothness) prior of Tikhonov regularisation and the robust
+(Tukey) M-estimator of Beaton & Tukey, Technometrics 16(2), 1974; stripe / fixed-pattern models of
+column-parallel read-out (EMVA Standard 1288, DSNU).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from .. import constants as K
+from ..runtime import PatternCorrection, valid_mask
+from ..runtime._phasor import metres_per_radian
+from .calibrate import FixedPattern
+from .calibrate_complex import ComplexPattern
+
+__all__ = [
+    "MIN_SCENES",
+    "MIN_Z",
+    "SAME_SCENE",
+    "LearnedPattern",
+    "learn_folder_pattern",
+]
+
+#: at least this many distinct scenes are needed to learn a pattern
+MIN_SCENES = 4
+#: two frames show one scene when the spread of their difference is below this many times the
+#: spread of its white part (:func:`_scenes`)
+SAME_SCENE = 2.0
+#: a part is kept when its two halves' agreement reaches this significance
+MIN_Z = 6.0
+#: Tukey's biweight cut-off, in noise standard deviations of a second difference
+TUKEY_C = 3.0
+#: empirical Bayes iterations (the first one least squares)
+ITERATIONS = 8
+#: conjugate-gradient iterations of the pixel part per outer iteration
+CG_ITERATIONS = 60
+#: parts below this RMS (mm) are not worth applying
+MIN_RMS_MM = 0.05
+PARTS = ("columns", "rows", "pixels")
+
+
+@dataclass
+class LearnedPattern:
+    """What :func:`learn_folder_pattern` found.
+
+    Attributes:
+        pattern: the kept parts as a :class:`~tof_fpn_torch.analysis.FixedPattern` (depth units
+            of the input), or None when no part was confirmed.
+        frames: frames given (valid ones); scenes: distinct scenes among them.
+        parts: per part (``columns``, ``rows``, ``pixels``): ``rms_mm`` (as applied), ``z``
+            (halves' agreement), ``factor`` (the Wiener factor applied, 0: not kept).
+        reason: why nothing was learned (None when a part was kept).
+        readout: the column part as a read-out offset (``~ 1 / A``), a
+            :class:`~tof_fpn_torch.analysis.ComplexPattern` removed after ``pattern``, when the
+            held-out half preferred it (then ``pattern`` holds no column offsets).
+        evidence: the read-out test: the frequency that fitted best and both models'
+            held-out losses.
+    """
+
+    pattern: FixedPattern | None
+    frames: int
+    scenes: int
+    parts: dict = field(default_factory=dict)
+    reason: str | None = None
+    readout: ComplexPattern | None = None
+    evidence: dict = field(default_factory=dict)
+
+    def module(self) -> PatternCorrection:
+        """The run-time stage: the offsets, then the read-out offset where there is one
+        (:class:`~tof_fpn_torch.runtime.PatternCorrection`). ValueError when nothing was
+        learned."""
+        if self.pattern is None:
+            raise ValueError(f"nothing to apply: {self.reason}")
+        parts = [self.pattern.module()]
+        if self.readout is not None:
+            parts.append(self.readout.module())
+        return PatternCorrection(parts, source="learned", learned=json.dumps(self.record()))
+
+    def record(self) -> dict:
+        """What it was learned from, as plain values (frames, scenes, parts, the read-out test)."""
+        return {
+            "frames": self.frames,
+            "scenes": self.scenes,
+            "parts": self.parts,
+            **self.evidence,
+        }
+
+    def to_arrays(self) -> tuple[dict[str, torch.Tensor], dict]:
+        """``(arrays, meta)`` of the pattern file format ``learned``
+        (:mod:`tof_fpn_torch.io.patterns`). ValueError when nothing was learned."""
+        if self.pattern is None:
+            raise ValueError(f"nothing to save: {self.reason}")
+        h, w = self.pattern.shape
+        p = self.pattern
+        zero = torch.zeros(w, dtype=torch.float64)
+        ro = self.readout
+        arrays = {
+            "column_offset": p.column_offset,
+            "row_offset": p.row_offset,
+            "pixel_offset": torch.zeros(h, w) if p.pixel_offset is None else p.pixel_offset,
+            "readout_re": zero if ro is None else ro.column_offset_re,
+            "readout_im": zero if ro is None else ro.column_offset_im,
+        }
+        meta = {
+            "modulation_frequency_hz": None if ro is None else ro.modulation_frequency_hz,
+            "has_pixel": p.pixel_offset is not None,
+            "learned": self.record(),
+        }
+        return {k: t.detach().double().cpu() for k, t in arrays.items()}, meta
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, torch.Tensor], meta: dict) -> LearnedPattern:
+        """The pattern of :meth:`to_arrays`' ``(arrays, meta)``."""
+        rec = meta["learned"]
+        h = arrays["row_offset"].numel()
+        pattern = FixedPattern(
+            column_offset=arrays["column_offset"],
+            row_offset=arrays["row_offset"],
+            pixel_offset=arrays["pixel_offset"] if meta["has_pixel"] else None,
+            frames=rec["frames"],
+            groups=rec["scenes"],
+        )
+        f = meta["modulation_frequency_hz"]
+        readout = None
+        if f is not None:
+            readout = ComplexPattern(
+                column_offset_re=arrays["readout_re"],
+                column_offset_im=arrays["readout_im"],
+                modulation_frequency_hz=float(f),
+                frames=rec["frames"],
+                height=h,
+            )
+        evidence = {k: v for k, v in rec.items() if k not in ("frames", "scenes", "parts")}
+        return cls(pattern, rec["frames"], rec["scenes"], rec["parts"], None, readout, evidence)
+
+    def summary(self) -> str:
+        """One line: what was learned from what, or why nothing was."""
+        if self.pattern is None:
+            return f"no fixed pattern learned from {self.frames} frame(s): {self.reason}"
+        kept = [
+            f"{name} {p['rms_mm']:.2f} mm (z {p['z']:.0f})"
+            for name, p in self.parts.items()
+            if p["factor"] > 0
+        ]
+        if self.readout is not None:
+            f = self.readout.modulation_frequency_hz / 1e6
+            kept[0] += f", a read-out offset ~ 1/A (best fit at {f:g} MHz)"
+        return (
+            f"fixed pattern learned from {self.frames} frames of {self.scenes} scenes: "
+            + ", ".join(kept)
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# second differences and their adjoints (NaN propagates: a difference touching an invalid pixel
+# is not an observation)
+
+
+def _d2(x: torch.Tensor, dim: int) -> torch.Tensor:
+    n = x.shape[dim]
+    return x.narrow(dim, 0, n - 2) - 2 * x.narrow(dim, 1, n - 2) + x.narrow(dim, 2, n - 2)
+
+
+def _d2t(e: torch.Tensor, dim: int, n: int) -> torch.Tensor:
+    shape = list(e.shape)
+    shape[dim] = n
+    out = e.new_zeros(shape)
+    out.narrow(dim, 0, n - 2).add_(e)
+    out.narrow(dim, 1, n - 2).sub_(2 * e)
+    out.narrow(dim, 2, n - 2).add_(e)
+    return out
+
+
+def _d2_var(var: torch.Tensor, dim: int) -> torch.Tensor:
+    n = var.shape[dim]
+    return var.narrow(dim, 0, n - 2) + 4 * var.narrow(dim, 1, n - 2) + var.narrow(dim, 2, n - 2)
+
+
+def _tukey(u: torch.Tensor) -> torch.Tensor:
+    return torch.where(u < 1, (1 - u * u) ** 2, torch.zeros_like(u))
+
+
+def _noise_var(d: torch.Tensor, amp: torch.Tensor | None) -> torch.Tensor:
+    """(N, H, W) noise variance: ``(k_i / A)^2`` with ``k_i`` from the MAD of the frame's second
+    differences, each divided by its model sd ``sqrt(1/A_{x-1}^2 + 4/A_x^2 + 1/A_{x+1}^2)`` (one
+    level per frame without amplitudes); edges are outliers the MAD ignores."""
+    a = torch.ones_like(d) if amp is None else amp
+    med = torch.nanmedian(a.flatten(1).where(torch.isfinite(d.flatten(1)), math.nan), 1).values
+    a = torch.maximum(a, 0.05 * med.clamp_min(1e-12)[:, None, None])
+    inv = 1.0 / (a * a)
+    e = (_d2(d, -1) / _d2_var(inv, -1).sqrt()).flatten(1)  # sd k where the model holds
+    k = torch.nanmedian(e.abs(), 1).values * 1.4826
+    k = torch.nan_to_num(k, nan=1.0).clamp_min(1e-6)
+    return (k[:, None, None] / a) ** 2
+
+
+def _profile(
+    d: torch.Tensor, var: torch.Tensor, dim: int, iterations: int = ITERATIONS
+) -> torch.Tensor:
+    """Column (``dim=-1``) or row (``dim=-2``) offsets of (N, H, W) frames (module docstring)."""
+    n = d.shape[dim]
+    if n < 3:
+        return d.new_zeros(n)
+    e = _d2(d, dim)
+    s2 = _d2_var(var, dim)
+    ok = torch.isfinite(e) & torch.isfinite(s2)
+    e0 = torch.where(ok, e, 0.0)
+    w0 = torch.where(ok, 1.0 / torch.where(ok, s2, 1.0), 0.0)
+    sd = torch.where(ok, s2, 1.0).sqrt()
+    other = (0, 1) if dim == -1 else (0, 2)
+    shape = [1, 1, n - 2] if dim == -1 else [1, n - 2, 1]
+    # D2 as a dense (n-2, n) matrix: the normal equations are pentadiagonal, solved densely
+    eye = torch.eye(n, dtype=d.dtype, device=d.device)
+    k2 = _d2(eye, 0)  # (n-2, n)
+    c = d.new_zeros(n)
+    for it in range(iterations):
+        if it == 0:
+            w = w0
+        else:
+            u = (e0 - _d2(c, 0).view(shape)).abs() / (TUKEY_C * sd)
+            w = w0 * _tukey(u)
+        cnt = w.sum(other)
+        g = (w * e0).sum(other)
+        if not bool(cnt.gt(0).any()):
+            return d.new_zeros(n)
+        lam = 1e-2 * float(cnt.median()) if it == 0 else 1.0 / max(float((c * c).mean()), 1e-8)
+        a = k2.T @ (cnt[:, None] * k2) + lam * eye
+        c = torch.linalg.solve(a, k2.T @ g)
+    return c - c.mean()
+
+
+#: modulation frequencies (Hz) tried for a read-out offset when the camera's is not known: the
+#: common continuous-wave ToF frequencies (PMD, Kinect v2, ESPROS, ADI, Melexis data sheets)
+FREQUENCIES_HZ: tuple[float, ...] = (
+    10e6, 12e6, 15e6, 16e6, K.CAMCUBE_MODULATION_FREQUENCY_HZ, 24e6, 30e6, 40e6, 50e6, 60e6,
+    80e6, 100e6,
+)  # fmt: skip
+#: the read-out model is chosen when its held-out loss is below the offset model's by this share
+READOUT_MARGIN = 0.02
+#: the amplitude floor of the ``1 / A`` basis, as a share of the median amplitude
+AMPLITUDE_FLOOR = 0.05
+
+
+def _basis(d: torch.Tensor, amp: torch.Tensor, f_hz: float) -> tuple[torch.Tensor, float]:
+    """(3, N, H, W) channels of a column's depth effect: ``1`` (an offset) and
+    ``A_ref cos(phi) / A``, ``A_ref sin(phi) / A`` (a complex read-out offset ``c``: the depth
+    moves by ``scale Im(c e^{-j phi}) / A``, eq. (10)); ``phi`` from the depth in mm; ``A_ref``
+    the median amplitude (returned)."""
+    scale_mm = 1000.0 * metres_per_radian(f_hz)
+    ok = torch.isfinite(d)
+    a_ref = float(amp[ok].median()) if bool(ok.any()) else 1.0
+    a = amp.clamp_min(AMPLITUDE_FLOOR * a_ref)
+    phi = torch.nan_to_num(d) / scale_mm
+    return torch.stack(
+        [torch.ones_like(d), a_ref * torch.cos(phi) / a, a_ref * torch.sin(phi) / a]
+    ), a_ref
+
+
+def _column_terms(d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor):
+    """The observations of the column model: second differences along x, their weights and sds,
+    and the basis at the three pixels of each difference, ``(3, K, N, H, W-2)``."""
+    w = d.shape[-1]
+    e = _d2(d, -1)
+    s2 = _d2_var(var, -1)
+    ok = torch.isfinite(e) & torch.isfinite(s2)
+    e0 = torch.where(ok, e, 0.0)
+    w0 = torch.where(ok, 1.0 / torch.where(ok, s2, 1.0), 0.0)
+    sd = torch.where(ok, s2, 1.0).sqrt()
+    b = torch.nan_to_num(basis)
+    shifted = torch.stack([b[..., k : k + w - 2] for k in range(3)])  # (3, K, N, H, W-2)
+    return e0, w0, sd, shifted
+
+
+_KAPPA = (1.0, -2.0, 1.0)
+
+
+def _column_model(theta: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
+    """``D2`` of the pattern ``sum_a theta_a(x) B_a`` at each second difference."""
+    w = theta.shape[-1]
+    out = torch.zeros_like(shifted[0, 0])
+    for k in range(3):
+        th = theta[:, k : k + w - 2]  # (K, W-2)
+        out = out + _KAPPA[k] * (shifted[k] * th[:, None, None, :]).sum(0)
+    return out
+
+
+def _tukey_loss(u: torch.Tensor) -> torch.Tensor:
+    return torch.where(u < 1, 1 - (1 - u * u) ** 3, torch.ones_like(u))
+
+
+def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = None):
+    """Column profiles ``theta`` (K, W) of the channels (module docstring) and the robust loss
+    of the fit: the normal equations of the weighted second differences, solved densely, with
+    one white prior per kind of channel (offsets; the read-out offset's two channels)."""
+    e0, w0, sd, shifted = terms
+    _, k_ch, _, _, m = shifted.shape
+    w = m + 2
+    idx = torch.arange(m)
+    fresh = theta is None
+    theta = shifted.new_zeros(k_ch, w) if theta is None else theta
+    for it in range(iterations):
+        if fresh and it == 0:
+            wt = w0
+        else:
+            u = (e0 - _column_model(theta, shifted)).abs() / (TUKEY_C * sd)
+            wt = w0 * _tukey(u)
+        if not bool(wt.gt(0).any()):
+            return shifted.new_zeros(k_ch, w), float("inf")
+        mat = shifted.new_zeros(k_ch * w, k_ch * w)
+        rhs = shifted.new_zeros(k_ch * w)
+        for k in range(3):
+            bk = shifted[k] * wt  # (K, N, H, m)
+            rhs.index_add_(0, (torch.arange(k_ch)[:, None] * w + k + idx).flatten(),
+                           (_KAPPA[k] * (bk * e0).sum((1, 2))).flatten())  # fmt: skip
+            for l_ in range(3):
+                g = torch.einsum("anhx,bnhx->abx", bk, shifted[l_]) * (_KAPPA[k] * _KAPPA[l_])
+                rows = (torch.arange(k_ch)[:, None, None] * w + k + idx).expand(k_ch, k_ch, m)
+                cols = (torch.arange(k_ch)[None, :, None] * w + l_ + idx).expand(k_ch, k_ch, m)
+                mat.index_put_((rows.flatten(), cols.flatten()), g.flatten(), accumulate=True)
+        diag = torch.diagonal(mat)
+        if fresh and it == 0:
+            lam = [1e-2 * float(diag[:w].median())] * k_ch
+        else:
+            lam = [1.0 / max(float((theta[0] ** 2).mean()), 1e-8)]
+            if k_ch > 1:
+                lam += [1.0 / max(float((theta[1:] ** 2).mean()), 1e-8)] * (k_ch - 1)
+        mat = mat + torch.diag(torch.tensor(lam, dtype=mat.dtype).repeat_interleave(w))
+        theta = torch.linalg.solve(mat, rhs).view(k_ch, w)
+        theta = theta - theta.mean(1, keepdim=True)
+    return theta, _loss(terms, theta)
+
+
+def _loss(terms, theta: torch.Tensor) -> float:
+    """The robust (Tukey) loss of ``theta`` on the observations ``terms``."""
+    e0, w0, sd, shifted = terms
+    u = (e0 - _column_model(theta, shifted)).abs() / (TUKEY_C * sd)
+    return float(_tukey_loss(u)[w0 > 0].sum())
+
+
+def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) -> torch.Tensor:
+    """Per-pixel offsets of (N, H, W) frames (module docstring), zero-mean."""
+    _, h, w = d.shape
+    terms = []
+    for dim, n in ((-1, w), (-2, h)):
+        if n < 3:
+            continue
+        e = _d2(d, dim)
+        s2 = _d2_var(var, dim)
+        ok = torch.isfinite(e) & torch.isfinite(s2)
+        terms.append(
+            (
+                dim,
+                n,
+                torch.where(ok, e, 0.0),
+                torch.where(ok, 1.0 / torch.where(ok, s2, 1.0), 0.0),
+                torch.where(ok, s2, 1.0).sqrt(),
+            )
+        )
+    p = d.new_zeros(h, w)
+    if not terms:
+        return p
+    lam = None
+    for it in range(iterations):
+        rhs = torch.zeros_like(p)
+        counts = []
+        for dim, n, e0, w0, sd in terms:
+            if it == 0:
+                wt = w0
+            else:
+                wt = w0 * _tukey((e0 - _d2(p[None], dim)).abs() / (TUKEY_C * sd))
+            cnt = wt.sum(0)
+            rhs += _d2t((wt * e0).sum(0), dim, n)
+            counts.append((dim, n, cnt))
+        if lam is None:
+            lam = 1e-2 * float(torch.stack([c.median() for _, _, c in counts]).mean())
+        else:
+            lam = 1.0 / max(float((p * p).mean()), 1e-8)
+        if lam <= 0:
+            return torch.zeros_like(p)
+
+        def op(x: torch.Tensor, lam: float = lam, counts: list = counts) -> torch.Tensor:
+            out = lam * x
+            for dim, n, cnt in counts:
+                out = out + _d2t(cnt * _d2(x, dim), dim, n)
+            return out
+
+        p = _cg(op, rhs, p)
+    return p - p.mean()
+
+
+def _cg(op, b: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    x = x.clone()
+    r = b - op(x)
+    z = r.clone()
+    rr = float((r * r).sum())
+    stop = 1e-20 * max(float((b * b).sum()), 1e-300)
+    for _ in range(CG_ITERATIONS):
+        if rr <= stop:
+            break
+        az = op(z)
+        alpha = rr / max(float((z * az).sum()), 1e-300)
+        x += alpha * z
+        r -= alpha * az
+        rr_new = float((r * r).sum())
+        z = r + (rr_new / rr) * z
+        rr = rr_new
+    return x
+
+
+def _learn(
+    d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor | None
+) -> dict[str, torch.Tensor]:
+    """Columns (the channels of ``basis``, offsets only when None), rows on what the columns
+    leave, pixels on what both leave; ``columns`` is (K, W)."""
+    b = torch.ones_like(d)[None] if basis is None else basis
+    theta, _ = _columns(_column_terms(d, var, b))
+    d = d - (theta[:, None, None, :] * b).sum(0)
+    row = _profile(d, var, -2)
+    d = d - row[None, :, None]
+    return {"columns": theta, "rows": row, "pixels": _pixels(d, var)}
+
+
+def _readout_model(
+    d: torch.Tensor, var: torch.Tensor, amp: torch.Tensor, frequencies: tuple[float, ...]
+) -> tuple[float | None, dict]:
+    """Whether the column pattern is a read-out offset (``~ 1 / A``) rather than a depth offset:
+    the frequency whose basis fits best (every 4th row, three iterations), then both models
+    learned on each half of the scenes and scored on the other half (the robust loss of
+    :func:`_columns`); the read-out model is chosen only when it predicts the held-out half
+    better by :data:`READOUT_MARGIN`. ``(f or None, evidence)``."""
+    sub = slice(None, None, 4) if d.shape[1] >= 16 else slice(None)
+    ds, vs, amps = d[:, sub], var[:, sub], amp[:, sub]
+    fits = []
+    for f in frequencies:
+        b, _ = _basis(ds, amps, f)
+        fits.append((_columns(_column_terms(ds, vs, b), iterations=3)[1], f))
+    best_f = min(fits)[1]
+    b_full, _ = _basis(d, amp, best_f)
+    ones = torch.ones_like(d)[None]
+    halves = (slice(0, None, 2), slice(1, None, 2))
+    held = {}
+    for name, basis in (("offset", ones), ("readout", b_full)):
+        terms = [_column_terms(d[h], var[h], basis[:, h]) for h in halves]
+        theta = [_columns(t)[0] for t in terms]
+        held[name] = _loss(terms[1], theta[0]) + _loss(terms[0], theta[1])
+    chosen = best_f if held["readout"] < (1 - READOUT_MARGIN) * held["offset"] else None
+    return chosen, {
+        "frequency_hz": best_f,
+        "held_out_loss": {k: round(v, 2) for k, v in held.items()},
+    }
+
+
+def _scenes(d: torch.Tensor) -> list[list[int]]:
+    """Frames grouped by scene. The difference of two frames of one scene is their noise alone
+    (the pattern cancels): white, so its spread (MAD about its median) is that of its second
+    differences along x divided by ``sqrt(6)``; a scene that moved adds smooth structure that
+    raises the first and hardly the second. ``i`` and ``j`` show one scene when the ratio is
+    below :data:`SAME_SCENE`."""
+    n = d.shape[0]
+    parent = list(range(n))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    step = max(1, d.shape[1] // 64)  # whole rows: the second differences stay along x
+    ds = d[:, ::step]
+    for i in range(n):
+        for j in range(i + 1, n):
+            diff = ds[i] - ds[j]
+            flat = diff[torch.isfinite(diff)]
+            curv = _d2(diff, -1)
+            curv = curv[torch.isfinite(curv)]
+            if flat.numel() < 16 or curv.numel() < 16:
+                continue
+            spread = float((flat - flat.median()).abs().median())
+            noise = float(curv.abs().median()) / math.sqrt(6.0)
+            if spread < SAME_SCENE * noise:
+                parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    return list(groups.values())
+
+
+def _merge(d: torch.Tensor, var: torch.Tensor, amp: torch.Tensor | None, groups: list[list[int]]):
+    """One frame per scene: the inverse-variance mean of its frames (and their mean
+    amplitude)."""
+    out_d, out_v = [], []
+    out_a = None if amp is None else torch.stack([amp[g].mean(0) for g in groups])
+    for g in groups:
+        x, v = d[g], var[g]
+        ok = torch.isfinite(x)
+        wt = torch.where(ok, 1.0 / v, 0.0)
+        sw = wt.sum(0)
+        m = torch.where(
+            sw > 0, (wt * torch.where(ok, x, 0.0)).sum(0) / sw.clamp_min(1e-300), math.nan
+        )
+        out_d.append(m)
+        out_v.append(torch.where(sw > 0, 1.0 / sw.clamp_min(1e-300), math.inf))
+    return torch.stack(out_d), torch.stack(out_v), out_a
+
+
+def _agreement(a: torch.Tensor, b: torch.Tensor) -> tuple[float, float, float]:
+    """``(z, S, v)`` of two independent estimates of one part (module docstring)."""
+    a, b = a.flatten() - a.mean(), b.flatten() - b.mean()
+    n = a.numel()
+    v = float(((a - b) ** 2).mean()) / 2
+    ab = float(a @ b)
+    if v <= 0 or n == 0:
+        return 0.0, 0.0, v
+    return ab / (math.sqrt(n) * v), ab / n, v
+
+
+def learn_folder_pattern(
+    depth: torch.Tensor,
+    amplitude: torch.Tensor | None = None,
+    *,
+    min_scenes: int = MIN_SCENES,
+    min_z: float = MIN_Z,
+    modulation_frequency_hz: float | None = None,
+) -> LearnedPattern:
+    """Learn the fixed pattern shared by (N, 1, H, W) ``depth`` frames of different scenes
+    (module docstring).
+
+    Args:
+        depth: frames of one camera (metres or any depth unit; invalid pixels by
+            :func:`~tof_fpn_torch.runtime.valid_mask` are left out).
+        amplitude: optional (N, 1, H, W): extends the validity rule and weights each pixel by
+            its noise (``~ 1 / A``).
+        min_scenes: at least this many distinct scenes (int >= 2).
+        min_z: the halves' agreement a part needs (> 0).
+        modulation_frequency_hz: the camera's, for the read-out model (None: the one of
+            :data:`FREQUENCIES_HZ` that fits best).
+
+    Returns:
+        a :class:`LearnedPattern` (its ``pattern`` None, with the reason, when nothing was
+        confirmed).
+
+    Raises:
+        ValueError: bad shapes or arguments.
+    """
+    if not isinstance(depth, torch.Tensor) or depth.dim() != 4 or depth.shape[1] != 1:
+        raise ValueError(
+            f"depth must be a (N, 1, H, W) tensor, got {getattr(depth, 'shape', type(depth))}"
+        )
+    if not depth.is_floating_point():
+        raise ValueError(f"depth must be floating point, got dtype {depth.dtype}")
+    if amplitude is not None and (
+        not isinstance(amplitude, torch.Tensor) or amplitude.shape != depth.shape
+    ):
+        raise ValueError(
+            f"amplitude must be a tensor of depth's shape {list(depth.shape)}, got "
+            f"{getattr(amplitude, 'shape', type(amplitude))}"
+        )
+    if isinstance(min_scenes, bool) or not isinstance(min_scenes, int) or min_scenes < 2:
+        raise ValueError(f"min_scenes must be an int >= 2, got {min_scenes!r}")
+    if isinstance(min_z, bool) or not isinstance(min_z, (int, float)) or not min_z > 0:
+        raise ValueError(f"min_z must be a number > 0, got {min_z!r}")
+    f = modulation_frequency_hz
+    if f is not None and (isinstance(f, bool) or not isinstance(f, (int, float)) or not f > 0):
+        raise ValueError(f"modulation_frequency_hz must be a number > 0 (Hz) or None, got {f!r}")
+    n, _, h, w = depth.shape
+    valid = valid_mask(depth, amplitude)[:, 0]
+    keep = valid.flatten(1).any(1)
+    # millimetres for the model's thresholds; the pattern goes back in the input's unit
+    unit = 1000.0
+    d = torch.where(valid, depth[:, 0].double() * unit, math.nan)[keep].cpu()
+    amp = None if amplitude is None else amplitude[:, 0].double()[keep].cpu()
+    frames = int(d.shape[0])
+    if h < 3 or w < 3:
+        return LearnedPattern(None, frames, 0, reason=f"frames of {h} x {w} are too small")
+    var = _noise_var(d, amp)
+    groups = _scenes(d)
+    scenes = len(groups)
+    if scenes < min_scenes:
+        still = "a still scene: " if frames >= min_scenes else ""
+        return LearnedPattern(
+            None,
+            frames,
+            scenes,
+            reason=f"{still}{scenes} distinct scene(s), a pattern needs >= {min_scenes}",
+        )
+    d, var, amp = _merge(d, var, amp, groups)
+    f_hz, evidence = None, {}
+    if amp is not None and w >= 5:
+        freqs = FREQUENCIES_HZ if modulation_frequency_hz is None else (modulation_frequency_hz,)
+        f_hz, evidence = _readout_model(d, var, amp, freqs)
+    basis, a_ref = (None, 1.0) if f_hz is None else _basis(d, amp, f_hz)
+    full = _learn(d, var, basis)
+    halves = [slice(0, None, 2), slice(1, None, 2)]
+    half_a, half_b = (_learn(d[h], var[h], None if basis is None else basis[:, h]) for h in halves)
+    parts, kept = {}, {}
+    for name in PARTS:
+        z, s, v = _agreement(half_a[name], half_b[name])
+        factor = s / (s + v / 2) if (s > 0 and z >= min_z) else 0.0
+        est = factor * full[name]
+        if name == "columns":  # its depth effect over the frames (the read-out's varies)
+            b = torch.ones_like(d)[None] if basis is None else basis
+            effect = torch.nan_to_num((est[:, None, None, :] * b).sum(0)[torch.isfinite(d)])
+            rms = float(effect.pow(2).mean().sqrt()) if effect.numel() else 0.0
+        else:
+            rms = float(est.pow(2).mean().sqrt()) if est.numel() else 0.0
+        if rms < MIN_RMS_MM:
+            factor, rms = 0.0, 0.0
+        parts[name] = {"rms_mm": round(rms, 4), "z": round(z, 2), "factor": round(factor, 4)}
+        if factor > 0:
+            kept[name] = est
+    if not kept:
+        return LearnedPattern(
+            None,
+            frames,
+            scenes,
+            parts,
+            reason=f"no part of a pattern agreed between two halves of the scenes (z < {min_z:g})",
+            evidence=evidence,
+        )
+    zero_c, zero_r = torch.zeros(w, dtype=torch.float64), torch.zeros(h, dtype=torch.float64)
+    columns = kept.get("columns")
+    readout = None
+    if columns is not None and f_hz is not None:
+        # the read-out channels: depth (mm) moves by (u cos phi + v sin phi) A_ref / A, i.e.
+        # scale Im(c e^{-j phi}) / A with c = (-v + j u) A_ref / scale (scale: mm per radian)
+        scale_mm = 1000.0 * metres_per_radian(f_hz)
+        readout = ComplexPattern(
+            column_offset_re=-columns[2] * a_ref / scale_mm,
+            column_offset_im=columns[1] * a_ref / scale_mm,
+            modulation_frequency_hz=f_hz,
+            frames=frames,
+            height=h,
+        )
+    pattern = FixedPattern(
+        column_offset=(zero_c if columns is None else columns[0]) / unit,
+        row_offset=kept.get("rows", zero_r * unit) / unit,
+        pixel_offset=None if "pixels" not in kept else kept["pixels"] / unit,
+        frames=frames,
+        groups=scenes,
+        flat_field=False,
+    )
+    return LearnedPattern(pattern, frames, scenes, parts, readout=readout, evidence=evidence)
