@@ -35,8 +35,8 @@ import statistics
 import torch
 
 from .. import constants as K
-from ..analysis import column_stripe_energy, lowpass_change
-from ..analysis.stripe_energy import quiet_mask
+from ..analysis import lowpass_change
+from ..analysis.stripe_energy import energy_before_after
 from ..denoise import estimate_sigma
 from ..io.stored import FrameSet, frame_set_tensors
 from ..runtime import valid_mask
@@ -77,12 +77,12 @@ def _energy(before: torch.Tensor, after: torch.Tensor) -> dict:
     (None where the frame has fewer than two rows to split, resp. columns)."""
     out = {}
     for name, transpose in _ORIENTATIONS.items():
-        b, a = (before, after) if not transpose else (before.mT, after.mT)
-        if too_thin(b.shape):
+        if too_thin(before.shape):
             out[name] = dict.fromkeys(_ENERGY_KEYS)
             continue
-        quiet = quiet_mask(b)
-        eb, ea = column_stripe_energy(b, quiet), column_stripe_energy(a, quiet)
+        b, a = (before, after) if not transpose else (before.mT, after.mT)
+        # the profiles along contiguous lines; the before's quiet mask serves both
+        eb, ea = energy_before_after(b.contiguous(), a.contiguous())
         n = float(eb.columns[0])
         r = float(eb.correlation[0])
         out[name] = {
