@@ -51,9 +51,13 @@ def _cumsum_ext(x: torch.Tensor, pad: int) -> torch.Tensor:
     """The cumulative sums of ``x`` along its last axis, ``pad + 1`` zeros before and the total
     ``pad`` times after: ``ext[..., j + pad + 1]`` is the sum of ``x[..., : j + 1]`` for every ``j``
     from ``-pad - 1`` to ``n - 1 + pad``, clipped to the line (bool ``x``: int32 counts)."""
-    c = torch.cumsum(x, -1, dtype=torch.int32 if x.dtype == torch.bool else None)
-    head = torch.zeros(*x.shape[:-1], pad + 1, dtype=c.dtype, device=c.device)
-    return torch.cat([head, c, c[..., -1:].expand(*x.shape[:-1], pad)], -1)
+    n = x.shape[-1]
+    dtype = torch.int32 if x.dtype == torch.bool else x.dtype
+    ext = torch.empty(*x.shape[:-1], n + 2 * pad + 1, dtype=dtype, device=x.device)
+    ext[..., : pad + 1] = 0
+    torch.cumsum(x, -1, dtype=dtype, out=ext[..., pad + 1 : pad + 1 + n])
+    ext[..., pad + 1 + n :] = ext[..., pad + n : pad + n + 1]
+    return ext
 
 
 def _window(ext: torch.Tensor, n: int, pad: int, before: int, after: int) -> torch.Tensor:
@@ -90,11 +94,11 @@ def _check_width(width) -> None:
 
 
 def _counts(v: torch.Tensor, widths: tuple[int, ...]) -> dict[int, torch.Tensor]:
-    """Per width: the number of valid pixels within ``width // 2`` columns in the row, at least 1
-    (float64, exact)."""
+    """Per width: the number of valid pixels within ``width // 2`` columns in the row (float64,
+    exact; at least 1 at a valid pixel, 0 possible elsewhere)."""
     n, pad = v.shape[-1], max(widths) // 2
     ext = _cumsum_ext(v.to(torch.float64), pad)
-    return {w: _window(ext, n, pad, w // 2, w // 2).clamp_min_(1.0) for w in widths}
+    return {w: _window(ext, n, pad, w // 2, w // 2) for w in widths}
 
 
 def _highpasses(
@@ -105,21 +109,28 @@ def _highpasses(
 ) -> list[torch.Tensor]:
     """:func:`row_highpass` of ``depth`` over the valid pixels ``v`` for each of ``widths``, from
     one cumulative sum along the rows (``counts``: :func:`_counts` of ``v``, if known)."""
-    x = torch.where(v, depth.double(), 0.0)
-    n = x.shape[-1]
+    n = depth.shape[-1]
     if n == 0:
-        return [x.to(depth.dtype) for _ in widths]
+        return [torch.zeros_like(depth) for _ in widths]
     counts = _counts(v, widths) if counts is None else counts
     # each row less the mean of its valid pixels (the high-pass does not see a row's offset):
     # the cumulative sums then hold deviations, not the depth itself
-    x = torch.where(v, x - x.sum(-1, keepdim=True) / v.sum(-1, keepdim=True).clamp_min(1), 0.0)
+    # in place where it can (fresh frame-sized buffers cost page faults); all float64 (an op on
+    # mixed dtypes takes a slow path)
+    invalid = ~v
+    x = depth.to(torch.float64, copy=True).masked_fill_(invalid, 0.0)  # never the input
+    x.sub_(x.sum(-1, keepdim=True) / v.sum(-1, keepdim=True).clamp_min(1))
+    x.masked_fill_(invalid, 0.0)
     pad = max(widths) // 2
     sums = _cumsum_ext(x, pad)
     out = []
     for width in widths:
         r = width // 2
-        mean = _window(sums, n, pad, r, r).div_(counts[width])
-        out.append(torch.where(v, x - mean, 0.0).to(depth.dtype))
+        # x less the mean around each pixel (0 / 0 at an invalid pixel without valid neighbours,
+        # set to 0 below with every invalid pixel)
+        hp = _window(sums, n, pad, r, r).div_(counts[width])
+        torch.sub(x, hp, out=hp)
+        out.append(hp.to(depth.dtype).masked_fill_(invalid, 0.0))
     return out
 
 
@@ -231,12 +242,13 @@ def _energy(hp: torch.Tensor, m: torch.Tensor, s: int, min_rows: int) -> StripeE
     """:func:`column_stripe_energy` from the high-pass ``hp`` and the pixels ``m`` it uses (the
     region's valid ones), the bottom part from row ``s``."""
     b, c, h, w = hp.shape
-    hp, m = hp.double().reshape(b * c, h, w), m.reshape(b * c, h, w)
+    hp, m = hp.reshape(b * c, h, w), m.reshape(b * c, h, w)
     profiles, counts = [], []
     for rows in (slice(0, s), slice(s, h)):
-        mm = m[:, rows].double()
-        n = mm.sum(1)
-        profiles.append((hp[:, rows] * mm).sum(1) / n.clamp_min(1.0))
+        n = m[:, rows].sum(1).double()
+        # the masked high-pass is exact in its own dtype; summed in float64
+        part = torch.where(m[:, rows], hp[:, rows], 0.0).sum(1, dtype=torch.float64)
+        profiles.append(part / n.clamp_min(1.0))
         counts.append(n)
     use = (counts[0] >= min_rows) & (counts[1] >= min_rows)
     k = use.sum(1).double()
@@ -265,26 +277,40 @@ def lowpass_change(
             f"before and after must have the same shape, got {list(before.shape)} and "
             f"{list(after.shape)}"
         )
+    if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+        raise ValueError(f"size must be an int >= 1, got {size!r}")
     v = valid_mask(before)
-    m = v if region is None else (region & v)
-    b, c, h, w = before.shape
-    d = torch.where(v, after.double() - before.double(), 0.0).reshape(b * c, h, w)
-    vv = v.reshape(b * c, h, w)
+    d = torch.where(v, after.double() - before.double(), 0.0)
+    return _lowpass_rms(d, v, v if region is None else (region & v), size)
+
+
+def _lowpass_rms(d: torch.Tensor, v: torch.Tensor, m: torch.Tensor, size: int) -> torch.Tensor:
+    """:func:`lowpass_change` from the change ``d`` (float64, 0 where not ``v``), the valid pixels
+    ``v`` and those of the RMS, ``m`` (a part of ``v``)."""
+    b, c, h, w = d.shape
+    d = d.reshape(b * c, h, w)
+    vv = v.reshape(b * c, h, w).double()  # counts, exact
     lo, hi = size // 2, size - 1 - size // 2  # the window of a size x size mean, zero padded
     num = _window_sum(_window_sum(d, -1, lo, hi), -2, lo, hi)
     den = _window_sum(_window_sum(vv, -1, lo, hi), -2, lo, hi)
-    low = torch.where(den > 0, num / den.clamp_min(1), 0.0)
-    mm = m.reshape(b * c, h, w).double()
-    return torch.sqrt((low * low * mm).sum((1, 2)) / mm.sum((1, 2)).clamp_min(1.0))
+    mm = m.reshape(b * c, h, w)
+    low = torch.where(mm, num / den, 0.0)  # den >= 1 at a valid pixel
+    return torch.sqrt((low * low).sum((1, 2)) / mm.sum((1, 2)).clamp_min(1))
 
 
 def energy_before_after(
-    before: torch.Tensor, after: torch.Tensor, width: int = 9, min_rows: int = 16
+    before: torch.Tensor,
+    after: torch.Tensor,
+    width: int = 9,
+    min_rows: int = 16,
+    *,
+    valid: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[StripeEnergy, StripeEnergy]:
     """The column-stripe energy of ``before`` and of ``after`` (same shape, (B, C, H, W), H >= 2)
     over the same region, the quiet pixels of ``before`` (:func:`quiet_mask`): what a correction
     did to the stripes. Equal to ``column_stripe_energy(x, quiet_mask(before), width)`` for both,
-    at the cost of fewer filters (the high-passes of ``before`` share their cumulative sums)."""
+    at the cost of fewer filters (the high-passes of ``before`` share their cumulative sums).
+    ``valid``: the valid pixels of ``before`` and ``after`` (``valid_mask`` of each), if known."""
     _check(before, "before")
     _check(after, "after")
     _check_width(width)
@@ -296,7 +322,7 @@ def energy_before_after(
     h = before.shape[-2]
     if h < 2:
         raise ValueError(f"the frames need two rows or more to split, got H = {h}")
-    vb, va = valid_mask(before), valid_mask(after)
+    vb, va = (valid_mask(before), valid_mask(after)) if valid is None else valid
     counts = _counts(vb, (15, width))
     hq, hb = _highpasses(before, vb, (15, width), counts)
     quiet = _quiet(vb, hq, 6.0)
