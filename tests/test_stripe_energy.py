@@ -56,6 +56,7 @@ def _close(a, b, atol):
 @pytest.mark.parametrize(("h", "w"), SIZES)
 def test_the_filters_equal_their_dense_formulation(h, w, dtype):
     before, _ = _frames(h, w, seed=h * 1000 + w, dtype=dtype, batch=2)
+    given = before.clone()
     atol = 1e-12 if dtype == torch.float64 else 1e-8  # a float32 output: an ulp of the high-pass
     for width in (3, 9, 15):
         ref = dense.row_highpass(before, width)
@@ -78,6 +79,7 @@ def test_the_filters_equal_their_dense_formulation(h, w, dtype):
             dense.lowpass_change(before, after, size, region),
             atol_lp,
         )
+    _close(before, given, 0)  # the input is left as it was
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
@@ -148,3 +150,55 @@ def test_the_dilation_is_a_max_pool():
     for r in (1, 6):
         ref = F.max_pool2d(mask.float(), 2 * r + 1, 1, r) > 0
         assert torch.equal(_dilate(mask, r), ref) and int(ref.sum()) > int(mask.sum()) > 0
+
+
+@pytest.mark.parametrize(("h", "w"), [(4, 4), (5, 9), (7, 5), (191, 255), (424, 512)])
+def test_the_record_noise_equals_estimate_sigma(h, w):
+    from tof_fpn_torch.clean.measure import _noise
+    from tof_fpn_torch.denoise import estimate_sigma
+    from tof_fpn_torch.runtime import valid_mask
+
+    for seed in range(3):
+        before, _ = _frames(h, w, seed=seed)
+        valid = valid_mask(before)
+        x = torch.where(valid, before, 0.0).double()
+        ref = float(estimate_sigma(x, valid=valid))
+        assert _noise(x, valid) == pytest.approx(ref, rel=1e-12, abs=1e-15)
+        if h > 100:
+            assert ref == pytest.approx(4e-3, rel=0.1)  # the frames' noise, measured
+    none = torch.zeros(1, 1, 8, 8, dtype=torch.bool)
+    assert _noise(torch.zeros(1, 1, 8, 8, dtype=torch.float64), none) == 0.0
+
+
+def test_the_record_of_a_file_measures_its_spread_frames():
+    """A 40-frame set: the record is that of its 16 evenly spread frames (the first and the last
+    among them), each decoded alone."""
+    from tof_fpn_torch.clean.measure import REPORT_FRAMES, file_report
+    from tof_fpn_torch.io.stored import FrameSet
+
+    g = torch.Generator().manual_seed(5)
+    t, h, w = 40, 48, 64
+    depth = 1500 + 30 * torch.arange(t)[:, None, None] + 4 * torch.randn(t, h, w, generator=g)
+    depth[:, :, ::2] += 6  # column stripes
+    stored = depth.round().clamp(1, 65535).numpy().astype("uint16")
+    stored[:, 5, 5] = 0
+    out = stored.copy()
+    out[:, :, ::2] -= 6
+    fs = FrameSet("", stored, stored.copy(), 1e-3, (t, h, w))
+    rec = file_report([fs], {"": out})
+    assert rec["measured_frames"] == REPORT_FRAMES
+    picks = sorted({round(i * (t - 1) / (REPORT_FRAMES - 1)) for i in range(REPORT_FRAMES)})
+    assert picks[0] == 0 and picks[-1] == t - 1
+    frames = []
+    for i in picks:
+        b = torch.from_numpy(stored[i : i + 1, None].astype("float64") * 1e-3).float()
+        a = torch.from_numpy(out[i : i + 1, None].astype("float64") * 1e-3).float()
+        b[b <= 0], a[a <= 0] = float("nan"), float("nan")
+        frames.append(dense.frame_record(b, a))
+    for name in ("columns", "rows"):
+        for key in ("before_mm2", "after_mm2", "z"):
+            ref = sum(f["stripes"][name][key] for f in frames) / len(frames)
+            assert rec["stripes"][name][key] == pytest.approx(ref, rel=1e-9, abs=1e-12)
+    assert rec["noise_mm"] == pytest.approx(sum(f["noise_mm"] for f in frames) / len(frames))
+    assert rec["lowpass_change_mm"] == pytest.approx(max(f["lowpass_change_mm"] for f in frames))
+    assert rec["stripes"]["columns"]["before_mm2"] > 5 > 10 * rec["stripes"]["columns"]["after_mm2"]

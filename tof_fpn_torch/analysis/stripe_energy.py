@@ -145,8 +145,12 @@ def row_highpass(
     return _highpasses(depth, v, (width,))[0]
 
 
-def _structure(hp: torch.Tensor, v: torch.Tensor, threshold: float, dilate: int) -> torch.Tensor:
-    strong = hp.abs() > threshold
+def _structure(
+    hp: torch.Tensor, v: torch.Tensor, threshold: float, dilate: int, size=None
+) -> torch.Tensor:
+    """``v`` less the pixels within ``dilate`` of one whose ``|hp|`` (``size``, if known) is
+    above ``threshold``."""
+    strong = (hp.abs() if size is None else size) > threshold
     if dilate > 0:
         strong = _dilate(strong, dilate)
     return v & ~strong
@@ -162,11 +166,11 @@ def structure_mask(
     return _structure(row_highpass(depth, width, v), v, threshold, dilate)
 
 
-def _lower_median_abs(hp: torch.Tensor, v: torch.Tensor) -> float:
-    """The median of ``|hp|`` over ``v`` (the lower of the two middle values, as
-    ``torch.median``; ``v`` has a pixel)."""
+def _lower_median(a: torch.Tensor, v: torch.Tensor) -> float:
+    """The median of ``a`` over ``v`` (the lower of the two middle values, as ``torch.median``;
+    ``v`` has a pixel)."""
     k = (int(v.sum()) - 1) // 2
-    a = torch.where(v, hp.abs(), float("inf"))  # the invalid pixels sort last
+    a = torch.where(v, a, float("inf"))  # the invalid pixels sort last
     if a.device.type == "cpu":  # a selection, not a sort
         flat = a.reshape(-1).numpy()
         return float(np.partition(flat, k)[k])
@@ -177,8 +181,9 @@ def _quiet(v: torch.Tensor, hp: torch.Tensor, sigmas: float) -> torch.Tensor:
     """:func:`quiet_mask` from the valid pixels ``v`` and the ``width`` high-pass ``hp``."""
     if not bool(v.any()):
         return v
-    scale = float(mad_to_sigma(torch.tensor(_lower_median_abs(hp, v), dtype=torch.float64), 1))
-    return _structure(hp, v, sigmas * scale, 6) if scale > 0 else v
+    size = hp.abs()
+    scale = float(mad_to_sigma(torch.tensor(_lower_median(size, v), dtype=torch.float64), 1))
+    return _structure(hp, v, sigmas * scale, 6, size) if scale > 0 else v
 
 
 def quiet_mask(depth: torch.Tensor, sigmas: float = 6.0, width: int = 15) -> torch.Tensor:
