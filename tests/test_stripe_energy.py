@@ -119,7 +119,11 @@ def test_the_record_of_a_frame_equals_its_first_formulation(h, w):
         return {key: d}
 
     f, r = flat(fast), flat(ref)
-    assert f.keys() == r.keys()
+    assert f.keys() == r.keys() | {".change_rms_mm"}
+    both = ~(before.isnan() | after.isnan())
+    change = (after.double() - before.double())[both]
+    rms = 1e3 * float(change.square().mean().sqrt()) if change.numel() else None
+    assert f[".change_rms_mm"] == (pytest.approx(rms, rel=1e-12) if rms is not None else None)
     for key in r:
         if r[key] is None:
             assert f[key] is None, key
@@ -184,6 +188,8 @@ def test_the_record_of_a_file_measures_its_spread_frames():
     stored[:, 5, 5] = 0
     out = stored.copy()
     out[:, :, ::2] -= 6
+    out[18, :, 1::2] -= 3  # a measured frame changed more than the others
+    out[1] -= 20  # a frame changed even more, but not among the measured ones
     fs = FrameSet("", stored, stored.copy(), 1e-3, (t, h, w))
     rec = file_report([fs], {"": out})
     assert rec["measured_frames"] == REPORT_FRAMES
@@ -201,4 +207,10 @@ def test_the_record_of_a_file_measures_its_spread_frames():
             assert rec["stripes"][name][key] == pytest.approx(ref, rel=1e-9, abs=1e-12)
     assert rec["noise_mm"] == pytest.approx(sum(f["noise_mm"] for f in frames) / len(frames))
     assert rec["lowpass_change_mm"] == pytest.approx(max(f["lowpass_change_mm"] for f in frames))
+    # the most changed of the measured frames and where it is
+    assert 1 not in picks and 18 in picks
+    d = out[18].astype(float) - stored[18]
+    both = (out[18] > 0) & (stored[18] > 0)
+    assert rec["change_frame"] == {"set": "", "frame": 18}
+    assert rec["change_rms_mm"] == pytest.approx(math.sqrt((d[both] ** 2).mean()))
     assert rec["stripes"]["columns"]["before_mm2"] > 5 > 10 * rec["stripes"]["columns"]["after_mm2"]

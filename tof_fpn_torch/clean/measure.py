@@ -17,6 +17,9 @@ input and from the output *as stored*, so integer rounding counts):
 * ``lowpass_change_mm``: the largest RMS change of the 15 x 15 low-passed depth
   (:func:`~tof_fpn_torch.analysis.lowpass_change`) over the pixels valid in both input and
   output (a stage may invalidate pixels): how far the scene itself moved;
+* ``change_rms_mm``: the largest RMS change (stored output less input, over the pixels valid in
+  both) of a measured frame, and ``change_frame``, that frame (``{"set": key, "frame": index}``,
+  the index in its frame set): the frame ``OUTPUT/report.png`` shows (:mod:`.figure`);
 * ``changed``: the share of valid pixels whose stored value changed;
 * ``flying``: with the flying-pixel stage, the pixels it flagged and the valid pixels it saw, over
   all frames (``flagged``, ``valid``, ``share``), None without it.
@@ -134,12 +137,14 @@ def _frame(before: torch.Tensor, after: torch.Tensor) -> dict:
         noise = 1e3 * _noise(x, valid)
     valid_after = valid_mask(after)
     both = valid & valid_after  # a stage may invalidate pixels (--flying invalidate)
-    moved = None
+    moved = rms = None
     if bool(both.any()):  # lowpass_change over the pixels valid in both
         d = torch.where(both, after.double() - before.double(), 0.0)
         moved = 1e3 * float(_lowpass_rms(d, both, both, 15))
+        rms = 1e3 * math.sqrt(float((d * d).sum()) / int(both.sum()))
     return {
         "noise_mm": noise,
+        "change_rms_mm": rms,
         "stripes": _energy(before, after, (valid, valid_after)),
         "lowpass_change_mm": moved,
         # a valid input pixel whose stored value changed (or became invalid)
@@ -159,7 +164,7 @@ def _finite_mean(values: list) -> float | None:
 def file_report(sets: list[FrameSet], encoded: dict) -> dict:
     """The record of one file (module docstring) from its frame sets as read and the encoded
     depth arrays (by set key); the steps add their own entries (``gate``, ``flying``, ...)."""
-    frames = []
+    frames, where = [], []
     for fs in sets:
         t = int(fs.depth.shape[0])
         picks = sorted(
@@ -172,6 +177,7 @@ def file_report(sets: list[FrameSet], encoded: dict) -> dict:
         before, _ = frame_set_tensors(ins, allow_empty=True)
         after, _ = frame_set_tensors(out, allow_empty=True)
         frames += [_frame(before[j : j + 1], after[j : j + 1]) for j in range(len(picks))]
+        where += [{"set": fs.key, "frame": i} for i in picks]
     stripes = {}
     for name in _ORIENTATIONS:
         stripes[name] = {
@@ -184,9 +190,16 @@ def file_report(sets: list[FrameSet], encoded: dict) -> dict:
         "noise_mm": noise,
         "stripes": stripes,
         "lowpass_change_mm": max(_finite([f["lowpass_change_mm"] for f in frames]), default=None),
+        "change_rms_mm": None,
+        "change_frame": None,
         "changed": _finite_mean([f["changed"] for f in frames]) or 0.0,
         "measured_frames": len(frames),
     }
+    changes = [(f["change_rms_mm"], k) for k, f in enumerate(frames)]
+    changes = [(c, k) for c, k in changes if c is not None and math.isfinite(c)]
+    if changes:  # the most changed measured frame (the first of equals)
+        rms, k = max(changes, key=lambda ck: (ck[0], -ck[1]))
+        rec["change_rms_mm"], rec["change_frame"] = rms, where[k]
     return finite_values(rec)
 
 
