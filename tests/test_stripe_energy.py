@@ -214,3 +214,19 @@ def test_the_record_of_a_file_measures_its_spread_frames():
     assert rec["change_frame"] == {"set": "", "frame": 18}
     assert rec["change_rms_mm"] == pytest.approx(math.sqrt((d[both] ** 2).mean()))
     assert rec["stripes"]["columns"]["before_mm2"] > 5 > 10 * rec["stripes"]["columns"]["after_mm2"]
+
+
+@pytest.mark.parametrize(("h", "w"), SIZES)
+def test_a_frame_stored_unchanged_has_the_record_of_its_first_formulation(h, w):
+    """``after is before`` (the file_report's shortcut for a frame stored unchanged) gives what
+    the full measure of two equal frames gives."""
+    before, _ = _frames(h, w, seed=11 * h + w)
+    fast, ref = _frame(before, before), dense.frame_record(before, before.clone())
+    assert fast.pop("change_rms_mm") == (0.0 if fast["lowpass_change_mm"] is not None else None)
+    for name in ("columns", "rows"):
+        for key in ("before_mm2", "after_mm2", "z"):
+            r = ref["stripes"][name][key]
+            f = fast["stripes"][name][key]
+            assert f == (None if r is None else pytest.approx(r, rel=1e-9, abs=1e-12))
+    for key in ("noise_mm", "lowpass_change_mm", "changed"):
+        assert fast[key] == (None if ref[key] is None else pytest.approx(ref[key], abs=1e-12))

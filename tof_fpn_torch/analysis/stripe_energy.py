@@ -331,6 +331,9 @@ def energy_before_after(
     counts = _counts(vb, (15, width))
     hq, hb = _highpasses(before, vb, (15, width), counts)
     quiet = _quiet(vb, hq, 6.0)
+    if after is before:  # the same frame: measured once
+        energy = _energy(hb, quiet, h // 2, min_rows)
+        return energy, energy
     # the after's valid pixels are mostly the before's (a stage may invalidate some)
     (ha,) = _highpasses(after, va, (width,), counts if torch.equal(va, vb) else None)
     return _energy(hb, quiet, h // 2, min_rows), _energy(ha, quiet & va, h // 2, min_rows)

@@ -85,6 +85,8 @@ def _energy(before: torch.Tensor, after: torch.Tensor, valid: tuple) -> dict:
             continue
         # the profiles along contiguous lines; the before's quiet mask serves both
         b, a, vb, va = ((x.mT if transpose else x).contiguous() for x in (before, after, *valid))
+        if after is before:
+            a, va = b, vb  # unchanged: measured once
         eb, ea = energy_before_after(b, a, valid=(vb, va))
         n = float(eb.columns[0])
         r = float(eb.correlation[0])
@@ -130,15 +132,19 @@ def _noise(x: torch.Tensor, valid: torch.Tensor) -> float:
 
 
 def _frame(before: torch.Tensor, after: torch.Tensor) -> dict:
+    """The measures of one frame; ``after is before`` for a frame stored unchanged (its after
+    measures are its before measures, not computed twice)."""
     valid = valid_mask(before)
     x = torch.where(valid, before, 0.0).double()
     noise = None
     if bool(valid.any()) and not too_thin(before.shape):
         noise = 1e3 * _noise(x, valid)
-    valid_after = valid_mask(after)
+    valid_after = valid if after is before else valid_mask(after)
     both = valid & valid_after  # a stage may invalidate pixels (--flying invalidate)
     moved = rms = None
-    if bool(both.any()):  # lowpass_change over the pixels valid in both
+    if after is before and bool(both.any()):
+        moved = rms = 0.0
+    elif bool(both.any()):  # lowpass_change over the pixels valid in both
         d = torch.where(both, after.double() - before.double(), 0.0)
         moved = 1e3 * float(_lowpass_rms(d, both, both, 15))
         rms = 1e3 * math.sqrt(float((d * d).sum()) / int(both.sum()))
@@ -161,9 +167,11 @@ def _finite_mean(values: list) -> float | None:
     return sum(v) / len(v) if v else None
 
 
-def file_report(sets: list[FrameSet], encoded: dict) -> dict:
+def file_report(sets: list[FrameSet], encoded: dict, output_scale: float | None = None) -> dict:
     """The record of one file (module docstring) from its frame sets as read and the encoded
-    depth arrays (by set key); the steps add their own entries (``gate``, ``flying``, ...)."""
+    depth arrays (by set key; ``output_scale``: metres per unit of an integer output, None: the
+    input's, as :func:`~tof_fpn_torch.io.encode.encode_depth`); the steps add their own entries
+    (``gate``, ``flying``, ...)."""
     frames, where = [], []
     for fs in sets:
         t = int(fs.depth.shape[0])
@@ -172,11 +180,16 @@ def file_report(sets: list[FrameSet], encoded: dict) -> dict:
         )
         picks = [i for i in picks if i < t]
         # only the measured frames are decoded
+        integer = fs.depth.dtype.kind in "ui"
+        scale = output_scale if integer and output_scale is not None else fs.depth_scale
         ins = FrameSet(fs.key, fs.depth[picks], fs.amplitude[picks], fs.depth_scale, fs.shape)
-        out = FrameSet(fs.key, encoded[fs.key][picks], ins.amplitude, fs.depth_scale, fs.shape)
+        out = FrameSet(fs.key, encoded[fs.key][picks], ins.amplitude, scale, fs.shape)
         before, _ = frame_set_tensors(ins, allow_empty=True)
         after, _ = frame_set_tensors(out, allow_empty=True)
-        frames += [_frame(before[j : j + 1], after[j : j + 1]) for j in range(len(picks))]
+        for j, i in enumerate(picks):
+            b = before[j : j + 1]
+            unchanged = scale == fs.depth_scale and np.array_equal(fs.depth[i], encoded[fs.key][i])
+            frames.append(_frame(b, b if unchanged else after[j : j + 1]))
         where += [{"set": fs.key, "frame": i} for i in picks]
     stripes = {}
     for name in _ORIENTATIONS:
