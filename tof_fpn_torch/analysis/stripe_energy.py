@@ -151,7 +151,7 @@ def _structure(
     """``v`` less the pixels within ``dilate`` of one whose ``|hp|`` (``size``, if known) is
     above ``threshold``."""
     strong = (hp.abs() if size is None else size) > threshold
-    if dilate > 0:
+    if dilate > 0 and bool(strong.any()):
         strong = _dilate(strong, dilate)
     return v & ~strong
 
