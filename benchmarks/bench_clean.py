@@ -19,6 +19,19 @@ workers (less sensitive than wall time to other load on the machine; the load av
 recorded). Writes docs/figures/clean_bench.json and prints a Markdown table::
 
     python benchmarks/bench_clean.py --frames 96 --repeats 3
+
+**The record's cost** (``--record``, nothing written to docs): in the same process and on the
+same files, best of ``--repeats``, one torch thread, ``--workers 0``:
+
+* **read + write**: what any cleaning must do to the files, with nothing computed: both PNGs
+  of each pair decoded (``imageio``), the depth encoded to a PNG, the amplitude copied;
+* **tof-fpn clean** with the FPN stage ``--stage`` (default ``paper``; ``auto`` builds its stage
+  from the frames first), end to end, and within it the per-file record
+  (:func:`tof_fpn_torch.clean.measure.file_report`, timed by wrapping it);
+
+printed with the ratios clean / (read + write) and record / clean::
+
+    python benchmarks/bench_clean.py --record --frames 40 --repeats 3
 """
 
 from __future__ import annotations
@@ -128,12 +141,95 @@ def _cpu() -> float:
     return total
 
 
+def read_write(src: Path, dst: Path) -> float:
+    """Seconds to decode every pair, encode its depth and copy its amplitude: the floor of a run."""
+    start = time.perf_counter()
+    for p in sorted(src.glob("*_depth.png")):
+        amp = Path(str(p).replace("_depth", "_amplitude"))
+        d = iio.imread(p)
+        iio.imread(amp)
+        iio.imwrite(dst / p.name, d, extension=".png")
+        shutil.copyfile(amp, dst / amp.name)
+    return time.perf_counter() - start
+
+
+def record_cost(src: Path, work: Path, repeats: int, stage: str) -> dict:
+    """Best-of-``repeats`` seconds of read + write, of ``clean`` and of the record within it."""
+    from tof_fpn_torch.clean import work as clean_work
+
+    real = clean_work.file_report
+    spent = [0.0]
+
+    def timed(*a, **k):
+        t0 = time.perf_counter()
+        try:
+            return real(*a, **k)
+        finally:
+            spent[0] += time.perf_counter() - t0
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    clean_work.file_report = timed
+    best = {"read_write": float("inf"), "clean": float("inf"), "record": float("inf")}
+    try:
+        for r in range(repeats):
+            dst = work / f"rw_{r}"
+            dst.mkdir()
+            best["read_write"] = min(best["read_write"], read_write(src, dst))
+            spent[0] = 0.0
+            t0 = time.perf_counter()
+            rep = clean(
+                str(src), str(work / f"clean_{r}"), CleanConfig(stage=stage), workers=0,
+                device="cpu", figure=False, progress=False,
+            )  # fmt: skip
+            seconds = time.perf_counter() - t0
+            assert rep.status == 0, rep.failures
+            if seconds < best["clean"]:
+                best["clean"], best["record"], best["steps"] = seconds, spent[0], rep.steps
+    finally:
+        clean_work.file_report = real
+        torch.set_num_threads(threads)
+    return best
+
+
+def record_main(args) -> None:
+    work = Path(tempfile.mkdtemp(prefix="bench_clean_record_"))
+    try:
+        src = work / "in"
+        src.mkdir()
+        make_frames(src, args.frames)
+        best = record_cost(src, work, args.repeats, args.stage)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    rw, total, rec = best["read_write"], best["clean"], best["record"]
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(
+        f"{args.frames} frames 424 x 512 uint16 PNG pairs, stage {args.stage!r}, 1 torch thread, "
+        f"--workers 0, best of {args.repeats} (load average at the end: {load})"
+    )
+    print(f"read + write:     {rw:6.2f} s")
+    print(f"tof-fpn clean:    {total:6.2f} s  ({total / rw:.2f}x read + write)")
+    steps = ", ".join(f"{k} {v:.2f} s" for k, v in best["steps"].items())
+    print(f"  its own timers: {steps} (the record is part of write)")
+    print(
+        f"  of it the record: {rec:6.2f} s  ({rec / total:.0%} of the run, "
+        f"{1e3 * rec / args.frames:.1f} ms / frame)"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=96)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default=str(ROOT / "docs" / "figures" / "clean_bench.json"))
+    ap.add_argument(
+        "--record", action="store_true", help="only the record's cost against read + write"
+    )
+    ap.add_argument("--stage", default="paper", help="the stage preset of the --record run")
     args = ap.parse_args()
+    if args.record:
+        record_main(args)
+        return
     work = Path(tempfile.mkdtemp(prefix="bench_clean_"))
     try:
         src = work / "in"

@@ -66,6 +66,13 @@ def test_output_scale_is_written_and_read_back(tmp_path):
     assert raw.dtype == np.uint16 and int(raw[0, 0]) == 15000  # 1.5 m in 0.1 mm units
     (fs,) = read_frame_sets(tmp_path / "out" / "a_depth.png", tmp_path / "out" / "a_amplitude.png")
     assert fs.depth_scale == 1e-4  # the PNG's depth_scale_m text chunk
+    # the record reads the output in its own units: a flat wall moved by nothing
+    rec = next(
+        json.loads(x)["report"]
+        for x in (tmp_path / "out" / "manifest.jsonl").read_text().splitlines()
+        if '"report"' in x
+    )
+    assert rec["change_rms_mm"] == 0.0 and rec["lowpass_change_mm"] == 0.0
 
 
 def test_eight_bit_depth_png_is_refused_with_a_hint(tmp_path):

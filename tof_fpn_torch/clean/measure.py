@@ -17,6 +17,9 @@ input and from the output *as stored*, so integer rounding counts):
 * ``lowpass_change_mm``: the largest RMS change of the 15 x 15 low-passed depth
   (:func:`~tof_fpn_torch.analysis.lowpass_change`) over the pixels valid in both input and
   output (a stage may invalidate pixels): how far the scene itself moved;
+* ``change_rms_mm``: the largest RMS change (stored output less input, over the pixels valid in
+  both) of a measured frame, and ``change_frame``, that frame (``{"set": key, "frame": index}``,
+  the index in its frame set): the frame ``OUTPUT/report.png`` shows (:mod:`.figure`);
 * ``changed``: the share of valid pixels whose stored value changed;
 * ``flying``: with the flying-pixel stage, the pixels it flagged and the valid pixels it saw, over
   all frames (``flagged``, ``valid``, ``share``), None without it.
@@ -32,12 +35,11 @@ from __future__ import annotations
 import math
 import statistics
 
+import numpy as np
 import torch
 
 from .. import constants as K
-from ..analysis import column_stripe_energy, lowpass_change
-from ..analysis.stripe_energy import quiet_mask
-from ..denoise import estimate_sigma
+from ..analysis.stripe_energy import _lowpass_rms, energy_before_after
 from ..io.stored import FrameSet, frame_set_tensors
 from ..runtime import valid_mask
 from .steps import steps
@@ -72,17 +74,20 @@ def finite_values(value):
     return value
 
 
-def _energy(before: torch.Tensor, after: torch.Tensor) -> dict:
+def _energy(before: torch.Tensor, after: torch.Tensor, valid: tuple) -> dict:
     """Stripe energy before / after (mm^2) and the input pattern's significance, per orientation
-    (None where the frame has fewer than two rows to split, resp. columns)."""
+    (None where the frame has fewer than two rows to split, resp. columns); ``valid``: the valid
+    pixels of ``before`` and ``after``."""
     out = {}
     for name, transpose in _ORIENTATIONS.items():
-        b, a = (before, after) if not transpose else (before.mT, after.mT)
-        if too_thin(b.shape):
+        if too_thin(before.shape):
             out[name] = dict.fromkeys(_ENERGY_KEYS)
             continue
-        quiet = quiet_mask(b)
-        eb, ea = column_stripe_energy(b, quiet), column_stripe_energy(a, quiet)
+        # the profiles along contiguous lines; the before's quiet mask serves both
+        b, a, vb, va = ((x.mT if transpose else x).contiguous() for x in (before, after, *valid))
+        if after is before:
+            a, va = b, vb  # unchanged: measured once
+        eb, ea = energy_before_after(b, a, valid=(vb, va))
         n = float(eb.columns[0])
         r = float(eb.correlation[0])
         out[name] = {
@@ -93,24 +98,63 @@ def _energy(before: torch.Tensor, after: torch.Tensor) -> dict:
     return out
 
 
+def _noise(x: torch.Tensor, valid: torch.Tensor) -> float:
+    """:func:`~tof_fpn_torch.denoise.estimate_sigma` of one CPU frame ``x`` ((1, 1, H, W)
+    float64, 0 where not ``valid``), the same wavelet MAD by a cheaper road (equal up to float
+    rounding): the db2 diagonal detail as two 1-D filters of stride 2 (the kernel is an outer
+    product), the 4 x 4 supports' invalid pixels counted the same way, the median by selection
+    instead of a sort."""
+    h, w = x.shape[-2:]
+    if h < 4 or w < 4:
+        return 0.0
+    g = torch.tensor(K.DB2_DEC_HI, dtype=x.dtype).flip(0).tolist()
+    ho, wo = (h - 4) // 2 + 1, (w - 4) // 2 + 1
+
+    def cols(t, j):  # every second column from j, wo of them
+        return t[..., j : j + 2 * wo - 1 : 2]
+
+    def rows(t, i):
+        return t[..., i : i + 2 * ho - 1 : 2, :]
+
+    r = g[0] * cols(x, 0) + g[1] * cols(x, 1) + g[2] * cols(x, 2) + g[3] * cols(x, 3)
+    d = g[0] * rows(r, 0) + g[1] * rows(r, 1) + g[2] * rows(r, 2) + g[3] * rows(r, 3)
+    bad = (~valid).to(torch.uint8)
+    c = cols(bad, 0) + cols(bad, 1) + cols(bad, 2) + cols(bad, 3)
+    touched = rows(c, 0) + rows(c, 1) + rows(c, 2) + rows(c, 3)
+    keep = (touched == 0) & (d != 0)
+    n = int(keep.sum())
+    if n == 0:
+        return 0.0
+    a = torch.where(keep, d.abs(), float("inf")).reshape(-1).numpy()  # the others sort last
+    lo, hi = (n - 1) // 2, n // 2
+    part = np.partition(a, (lo, hi))
+    return float(0.5 * (part[lo] + part[hi]) * K.MAD_TO_SIGMA)
+
+
 def _frame(before: torch.Tensor, after: torch.Tensor) -> dict:
+    """The measures of one frame; ``after is before`` for a frame stored unchanged (its after
+    measures are its before measures, not computed twice)."""
     valid = valid_mask(before)
     x = torch.where(valid, before, 0.0).double()
     noise = None
     if bool(valid.any()) and not too_thin(before.shape):
-        noise = 1e3 * float(estimate_sigma(x, valid=valid).mean())
-    same = (before == after) | (before.isnan() & after.isnan())
-    both = valid & valid_mask(after)  # a stage may invalidate pixels (--flying invalidate)
-    moved = None
-    if bool(both.any()):
-        nan = torch.full_like(before, float("nan"))
-        b, a = torch.where(both, before, nan), torch.where(both, after, nan)
-        moved = 1e3 * float(lowpass_change(b, a))
+        noise = 1e3 * _noise(x, valid)
+    valid_after = valid if after is before else valid_mask(after)
+    both = valid & valid_after  # a stage may invalidate pixels (--flying invalidate)
+    moved = rms = None
+    if after is before and bool(both.any()):
+        moved = rms = 0.0
+    elif bool(both.any()):  # lowpass_change over the pixels valid in both
+        d = torch.where(both, after.double() - before.double(), 0.0)
+        moved = 1e3 * float(_lowpass_rms(d, both, both, 15))
+        rms = 1e3 * math.sqrt(float((d * d).sum()) / int(both.sum()))
     return {
         "noise_mm": noise,
-        "stripes": _energy(before, after),
+        "change_rms_mm": rms,
+        "stripes": _energy(before, after, (valid, valid_after)),
         "lowpass_change_mm": moved,
-        "changed": float((~same & valid).sum()) / max(int(valid.sum()), 1),
+        # a valid input pixel whose stored value changed (or became invalid)
+        "changed": float(((before != after) & valid).sum()) / max(int(valid.sum()), 1),
     }
 
 
@@ -123,19 +167,30 @@ def _finite_mean(values: list) -> float | None:
     return sum(v) / len(v) if v else None
 
 
-def file_report(sets: list[FrameSet], encoded: dict) -> dict:
+def file_report(sets: list[FrameSet], encoded: dict, output_scale: float | None = None) -> dict:
     """The record of one file (module docstring) from its frame sets as read and the encoded
-    depth arrays (by set key); the steps add their own entries (``gate``, ``flying``, ...)."""
-    frames = []
+    depth arrays (by set key; ``output_scale``: metres per unit of an integer output, None: the
+    input's, as :func:`~tof_fpn_torch.io.encode.encode_depth`); the steps add their own entries
+    (``gate``, ``flying``, ...)."""
+    frames, where = [], []
     for fs in sets:
-        out = FrameSet(fs.key, encoded[fs.key], fs.amplitude, fs.depth_scale, fs.shape)
-        before, _ = frame_set_tensors(fs, allow_empty=True)
-        after, _ = frame_set_tensors(out, allow_empty=True)
-        t = before.shape[0]
+        t = int(fs.depth.shape[0])
         picks = sorted(
             {round(i * (t - 1) / max(REPORT_FRAMES - 1, 1)) for i in range(REPORT_FRAMES)}
         )
-        frames += [_frame(before[i : i + 1], after[i : i + 1]) for i in picks if i < t]
+        picks = [i for i in picks if i < t]
+        # only the measured frames are decoded
+        integer = fs.depth.dtype.kind in "ui"
+        scale = output_scale if integer and output_scale is not None else fs.depth_scale
+        ins = FrameSet(fs.key, fs.depth[picks], fs.amplitude[picks], fs.depth_scale, fs.shape)
+        out = FrameSet(fs.key, encoded[fs.key][picks], ins.amplitude, scale, fs.shape)
+        before, _ = frame_set_tensors(ins, allow_empty=True)
+        after, _ = frame_set_tensors(out, allow_empty=True)
+        for j, i in enumerate(picks):
+            b = before[j : j + 1]
+            unchanged = scale == fs.depth_scale and np.array_equal(fs.depth[i], encoded[fs.key][i])
+            frames.append(_frame(b, b if unchanged else after[j : j + 1]))
+        where += [{"set": fs.key, "frame": i} for i in picks]
     stripes = {}
     for name in _ORIENTATIONS:
         stripes[name] = {
@@ -148,9 +203,16 @@ def file_report(sets: list[FrameSet], encoded: dict) -> dict:
         "noise_mm": noise,
         "stripes": stripes,
         "lowpass_change_mm": max(_finite([f["lowpass_change_mm"] for f in frames]), default=None),
+        "change_rms_mm": None,
+        "change_frame": None,
         "changed": _finite_mean([f["changed"] for f in frames]) or 0.0,
         "measured_frames": len(frames),
     }
+    changes = [(f["change_rms_mm"], k) for k, f in enumerate(frames)]
+    changes = [(c, k) for c, k in changes if c is not None and math.isfinite(c)]
+    if changes:  # the most changed measured frame (the first of equals)
+        rms, k = max(changes, key=lambda ck: (ck[0], -ck[1]))
+        rec["change_rms_mm"], rec["change_frame"] = rms, where[k]
     return finite_values(rec)
 
 

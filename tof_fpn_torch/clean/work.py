@@ -287,7 +287,7 @@ def _write_job(item: Loaded, token: str, config: CleanConfig) -> dict:
                 pass
         return {"error": f"write failed: {reason(exc)}"}
     try:
-        report = file_report(item.sets, encoded)
+        report = file_report(item.sets, encoded, config.output_scale)
         for step in steps():
             if step.scope == "frame" and step.file_record is not None:
                 frames = [
