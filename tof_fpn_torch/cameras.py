@@ -94,6 +94,18 @@ PROFILES: dict[str, CameraProfile] = {
         "no RealSense capture with infrared measured here: use fusion_from_data. D400 depth is "
         "active stereo and L515 depth is LiDAR, not continuous-wave ToF",
     ),
+    "espros_tofcam635": CameraProfile(
+        "espros_tofcam635",
+        "ESPROS TOFcam635 (epc635, 160 x 60) amplitude as the epc-tofcam-toolkit records it "
+        "(LSB; saturates near 2896)",
+        "mm (the toolkit's point cloud x, y, z; read as z, the optical-axis depth)",
+        (20e6, 10e6),
+        None,
+        None,
+        "modulation frequencies: the toolkit's TOFcam635 settings (20 and 10 MHz; a recording "
+        "states its own in mod_frequency). No fusion thresholds measured here: use "
+        "fusion_from_data",
+    ),
 }
 
 
