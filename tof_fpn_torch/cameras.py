@@ -99,12 +99,11 @@ PROFILES: dict[str, CameraProfile] = {
         "ESPROS TOFcam635 (epc635, 160 x 60) amplitude as the epc-tofcam-toolkit records it "
         "(LSB; saturates near 2896)",
         "mm (the toolkit's point cloud x, y, z; read as z, the optical-axis depth)",
-        (20e6, 10e6),
+        (),
         None,
         None,
-        "modulation frequencies: the toolkit's TOFcam635 settings (20 and 10 MHz; a recording "
-        "states its own in mod_frequency). No fusion thresholds measured here: use "
-        "fusion_from_data",
+        "each recording states its modulation frequency (mod_frequency; the toolkit offers 10 "
+        "and 20 MHz). No fusion thresholds measured here: use fusion_from_data",
     ),
 }
 

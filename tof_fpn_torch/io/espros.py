@@ -48,6 +48,7 @@ import h5py
 import numpy as np
 import torch
 
+from .. import constants as K
 from ._common import FormatError, FrameSet, check_not_empty, check_scale, decoding, existing_file
 from ._container import jsonable
 from .recording import Recording
@@ -68,7 +69,6 @@ ESPROS_CAMERA = "espros_tofcam635"
 EPC635_SIZE: tuple[int, int] = (60, 160)
 ESPROS_AMPLITUDE_UNIT = "ESPROS epc635 amplitude as the epc-tofcam-toolkit records it (LSB)"
 _SUFFIXES = (".h5", ".hdf5")
-_SPEED_OF_LIGHT = 299_792_458.0
 #: without ``mod_frequency``: the epc635's lowest modulation frequency, 10 MHz
 _LOWEST_FREQUENCY_HZ = 10e6
 #: image types holding one amplitude-like image per frame
@@ -210,7 +210,7 @@ def _depth_unit(z: np.ndarray, frequency: float | None, depth_scale) -> tuple[fl
         good = z[np.isfinite(z) & (z > 0)]
     if good.size == 0:
         return 1e-3, "mm (the toolkit's unit)"
-    reach = _SPEED_OF_LIGHT / (2 * (frequency or _LOWEST_FREQUENCY_HZ))
+    reach = K.SPEED_OF_LIGHT / (2 * (frequency or _LOWEST_FREQUENCY_HZ))
     if float(good.max()) < reach:
         return 1.0, (
             f"m: every z is below {reach:.3g}, the unambiguous range in metres; in mm the whole "
