@@ -154,6 +154,22 @@ def test_a_point_cloud_in_metres_is_told_from_its_values_or_by_depth_scale(tmp_p
     torch.testing.assert_close(forced.depth * 1e3, ref.depth, rtol=1e-6, atol=0)
 
 
+def test_odd_attributes_and_timestamps_are_kept_out_of_the_way(tmp_path):
+    """Timestamps that do not increase are left out (said in the meta); attributes JSON cannot
+    hold (NaN, bytes) are kept as text; no modulation frequency: None."""
+    path = _copy(tmp_path)
+    with h5py.File(path, "r+") as f:
+        f["timestamps"][3] = f["timestamps"][2]
+        f.attrs["mod_frequency"] = np.nan
+        f.attrs["note"] = np.bytes_(b"lab")
+    rec = tio.read_espros_hdf5(path)
+    assert rec.timestamps_s is None and rec.meta["timestamp_source"].startswith("left out")
+    assert rec.meta["modulation_frequency_hz"] is None
+    assert rec.meta["espros_attributes"]["mod_frequency"] == "nan"
+    assert rec.meta["espros_attributes"]["note"] == "lab"
+    tio.write_recording(tmp_path / "r.npz", rec)  # the meta is valid JSON for a recording
+
+
 def test_a_region_that_does_not_match_the_pixels_is_a_format_error(tmp_path):
     path = _copy(tmp_path)
     with h5py.File(path, "r+") as f:

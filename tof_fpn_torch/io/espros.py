@@ -41,6 +41,7 @@ rewritten), like the other camera containers.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -79,6 +80,18 @@ def _text(value) -> str:
     if isinstance(value, bytes):
         return value.decode("utf-8", "replace")
     return str(value)
+
+
+def _attribute(value):
+    """A root attribute as JSON data for the meta (text for what JSON cannot hold)."""
+    if isinstance(value, bytes):
+        return _text(value)
+    try:
+        out = jsonable(value)
+        json.dumps(out, allow_nan=False)
+        return out
+    except (TypeError, ValueError):
+        return str(value)
 
 
 def _is_toolkit_file(f: h5py.File) -> bool:
@@ -245,7 +258,7 @@ def _read(path, depth_scale=None):
             )
         points, amp = points[()].astype(np.float64), amp[()]
         stamps = np.asarray(f["timestamps"][()], dtype=np.float64).ravel()
-        attrs = {k: jsonable(v) for k, v in f.attrs.items()}
+        attrs = {str(k): _attribute(v) for k, v in f.attrs.items()}
         image_type = _text(f.attrs["image_type"])
         frequency = _positive(f.attrs.get("mod_frequency"))
         integration = _positive(f.attrs.get("integration_time_3d"))
@@ -259,14 +272,15 @@ def _read(path, depth_scale=None):
         depth = np.where(np.isfinite(z) & (z > 0), z, np.nan).astype(np.float32)
     amplitude = np.ascontiguousarray(_to_image(amp, h, w, order), dtype=np.float32)
     depth = np.ascontiguousarray(depth)
-    timestamps = None
-    start = None
+    timestamps, start = None, None
+    stamp_note = f"left out: {stamps.size} timestamps for {t} frames, or not strictly increasing"
     if (
         stamps.shape == (t,)
         and np.isfinite(stamps).all()
         and (t == 1 or (np.diff(stamps) > 0).all())
     ):
         start, timestamps = float(stamps[0]), stamps - stamps[0]
+        stamp_note = "the file's timestamps (Unix s)"
     fits = h <= EPC635_SIZE[0] and w <= EPC635_SIZE[1]
     meta = {
         "camera": ESPROS_CAMERA if fits else None,
@@ -282,7 +296,7 @@ def _read(path, depth_scale=None):
         "pixel_order": order,
         "pixel_order_source": how,
         "start_time_s": start,
-        "timestamp_source": "the file's timestamps (Unix s)" if start is not None else None,
+        "timestamp_source": stamp_note,
         "espros_attributes": attrs,
     }
     return depth, amplitude, meta, timestamps
