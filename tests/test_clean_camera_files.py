@@ -1,7 +1,7 @@
 """``tof-fpn clean`` on camera files: the real Azure Kinect ``.mkv`` and ADI vendor files (also side
-by side in one folder, and beside the ESPROS HDF5 files, which fail alone), ROS 1 / ROS 2 /
-RealSense bags in a tree, resume on bag folders, the refusal of a folder with nothing to clean,
-output names two inputs would share."""
+by side in one folder, and beside the ESPROS HDF5 files: the point cloud cleaned, the amplitude
+file failing alone), ROS 1 / ROS 2 / RealSense bags in a tree, resume on bag folders, the refusal
+of a folder with nothing to clean, output names two inputs would share."""
 
 from __future__ import annotations
 
@@ -68,9 +68,10 @@ def test_clean_the_real_data_folder_takes_every_camera_file(tmp_path, capsys):
     assert (out / "azure_kinect" / "desk_recording.npz").is_file()
 
 
-def test_the_espros_hdf5_files_fail_alone_with_a_one_line_reason(tmp_path, capsys):
-    """The ESPROS TOFcam635 HDF5 files (amplitude frames, a point cloud: no depth image) beside an
-    ADI pair: each is reported failed with one line naming what it lacks; the pair is cleaned."""
+def test_the_espros_hdf5_files_beside_an_adi_pair(tmp_path, capsys):
+    """The ESPROS TOFcam635 HDF5 files (a point cloud, amplitude frames) beside an ADI pair: the
+    point cloud is cleaned into a recording .npz, the amplitude-only file fails with one line
+    saying it has no depth; the pair is cleaned."""
     espros = [
         "espros_tofcam635/amplitude_w544c005_250527_134627.h5",
         "espros_tofcam635/point_cloud_w544c005_250527_134722.h5",
@@ -78,17 +79,18 @@ def test_the_espros_hdf5_files_fail_alone_with_a_one_line_reason(tmp_path, capsy
     src = handed_over(tmp_path / "in", [*espros, *(f"adi_adtf3175/{name}" for name in ADI)])
     out = tmp_path / "out"
     status, stdout, err = _cli(["clean", src, out, "--quiet"], capsys)
-    assert status == 1 and "cleaned 1 file(s) (1 frames)" in stdout, (stdout, err)
-    assert err[-1].startswith("tof-fpn clean: error: 2 of 3 file(s) failed"), err
+    assert status == 1 and "cleaned 2 file(s) (15 frames)" in stdout, (stdout, err)
+    assert err[-1].startswith("tof-fpn clean: error: 1 of 3 file(s) failed"), err
     records = _records(out)
     assert records[f"adi_adtf3175/{ADI[0]}"]["status"] == "done"
     assert (out / "adi_adtf3175" / ADI[0]).is_file()
-    for rel in espros:
-        reason = records[rel]["error"]
-        assert records[rel]["status"] == "failed" and "\n" not in reason, records[rel]
-        assert reason == f"{src / rel}: no group holds both a 'depth' and an 'amplitude' dataset"
-        assert f"failed: {rel}: {reason}" in stdout.splitlines()  # the summary names it
-    assert not list(out.rglob("*.h5"))  # nothing written for them
+    assert records[espros[1]]["status"] == "done"
+    assert (out / "espros_tofcam635" / "point_cloud_w544c005_250527_134722.npz").is_file()
+    reason = records[espros[0]]["error"]
+    assert records[espros[0]]["status"] == "failed" and "\n" not in reason, records[espros[0]]
+    assert reason.startswith(f"{src / espros[0]}: amplitude only, no depth: "), reason
+    assert f"failed: {espros[0]}: {reason}" in stdout.splitlines()  # the summary names it
+    assert not list(out.rglob("*.h5"))  # nothing written as HDF5
 
 
 def test_clean_adi_vendor_files_in_their_own_format(tmp_path, capsys):

@@ -94,6 +94,17 @@ PROFILES: dict[str, CameraProfile] = {
         "no RealSense capture with infrared measured here: use fusion_from_data. D400 depth is "
         "active stereo and L515 depth is LiDAR, not continuous-wave ToF",
     ),
+    "espros_tofcam635": CameraProfile(
+        "espros_tofcam635",
+        "ESPROS TOFcam635 (epc635, 160 x 60) amplitude as the epc-tofcam-toolkit records it "
+        "(LSB; saturates near 2896)",
+        "mm (the toolkit's point cloud x, y, z; read as z, the optical-axis depth)",
+        (),
+        None,
+        None,
+        "each recording states its modulation frequency (mod_frequency; the toolkit offers 10 "
+        "and 20 MHz). No fusion thresholds measured here: use fusion_from_data",
+    ),
 }
 
 

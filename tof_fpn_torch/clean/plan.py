@@ -23,6 +23,7 @@ from pathlib import Path
 from ..io.camera_files import (
     ACCEPTED,
     CONTAINER_SUFFIXES,
+    is_camera_recording,
     is_ros2_bag_dir,
     recording_stem,
     ros2_bag_files,
@@ -150,12 +151,12 @@ def _frames_in(folder: Path, names: list[str], rel: str, out: Path) -> list[Job]
         suffix = p.suffix.lower()
         key = f"{rel}{fname}"
         vendor = vendor_name(fname)
-        if suffix in PAIR_SUFFIXES or (vendor is not None and vendor.kind == "interleaved"):
-            jobs.append(Job(key, str(p), None, str(out / key), None))
-        elif suffix in CONTAINER_SUFFIXES:
-            jobs.append(
+        if suffix in CONTAINER_SUFFIXES or (suffix in PAIR_SUFFIXES and is_camera_recording(p)):
+            jobs.append(  # a container found by its content too (an ESPROS toolkit .h5)
                 Job(key, str(p), None, str(out / rel / f"{recording_stem(fname)}.npz"), None)
             )
+        elif suffix in PAIR_SUFFIXES or (vendor is not None and vendor.kind == "interleaved"):
+            jobs.append(Job(key, str(p), None, str(out / key), None))
         elif (pair := _partner(fname)) is not None:
             kind, other = pair
             names_ = (fname, other) if kind == "depth" else (other, fname)

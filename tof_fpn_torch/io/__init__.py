@@ -20,8 +20,9 @@ formats, their units and what each reader can and cannot do.
   :mod:`.stored` -- files as stored, written back with another depth (``tof-fpn clean``).
 - :mod:`.captures` -- ADI ADTF3175 (depth + IR, interleaved), Kinect v2 P0 tables;
   :mod:`.matroska` -- Azure Kinect ``.mkv`` (PyAV); :mod:`.rosbag` -- ROS 1 / ROS 2 bags,
-  RealSense recordings (rosbags); :mod:`.camera_files` -- camera files by name (containers,
-  ADI vendor names) for the folder tools.
+  RealSense recordings (rosbags); :mod:`.espros` -- ESPROS TOFcam635 point clouds of the
+  epc-tofcam-toolkit (HDF5, found by content); :mod:`.camera_files` -- camera files by name
+  (containers, ADI vendor names) for the folder tools.
 - :mod:`.recording` -- the recording format (:class:`Recording`); :mod:`.scene` -- the scene
   format (:class:`SceneData`).
 - :mod:`.dataset` -- :class:`FrameDataset`, a folder of frames for a ``DataLoader``.
@@ -39,6 +40,7 @@ from .captures import (
     write_kinect_v2_p0,
 )
 from .dataset import FrameDataset, find_frames
+from .espros import read_espros_hdf5
 from .formats import FileFormat, MissingExtraError, format_for
 from .hdf5 import read_hdf5, write_hdf5
 from .images import read_png, read_tiff, write_png, write_tiff
@@ -75,6 +77,7 @@ __all__ = [
     "read_any_recording",
     "read_azure_kinect_mkv",
     "read_camera_file",
+    "read_espros_hdf5",
     "read_hdf5",
     "read_kinect_v2_p0",
     "read_npy",

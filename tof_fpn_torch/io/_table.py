@@ -61,6 +61,9 @@ class FileFormat:
         requires: the modules that extra installs (imported when a file is read).
         matches_name: camera files: whether a file name (no folder) is one of this format.
         matches_folder: whether a folder is one file of this format (ROS 2 bags).
+        matches_file: files found by their content (an ESPROS toolkit HDF5 file): whether an
+            existing file is one of this format, by its structure (cheap, never raises);
+            :func:`format_for` asks it before the suffix, :func:`format_of_name` never.
         names: camera files and folders: the naming rule, for the docs.
         needs_size: the frame size is not in the file (``height`` / ``width`` must be given).
     """
@@ -77,6 +80,7 @@ class FileFormat:
     requires: tuple[str, ...] = ()
     matches_name: Callable[[str], bool] | None = None
     matches_folder: Callable[[Path], bool] | None = None
+    matches_file: Callable[[Path], bool] | None = None
     names: str = ""
     needs_size: bool = False
 
@@ -190,13 +194,20 @@ def format_of_name(name, *, by_name: bool = True) -> FileFormat | None:
 
 def format_for(path, *, by_name: bool = True) -> FileFormat | None:
     """The format of ``path``: a folder is one file of the format whose ``matches_folder``
-    takes it (a ROS 2 bag), else of none; a file is by :func:`format_of_name`. ``by_name=False``:
-    by suffix only (the frame files of :func:`~.pairs.read_pair` and
-    :class:`~.dataset.FrameDataset`, where an ADI name is a raw file like any other)."""
+    takes it (a ROS 2 bag), else of none; a file is by :func:`format_of_name`'s naming rules,
+    then by its content (a format whose ``matches_file`` takes it: an ESPROS toolkit ``.h5``),
+    then by its suffix. ``by_name=False``: by suffix only (the frame files of
+    :func:`~.pairs.read_pair` and :class:`~.dataset.FrameDataset`, where an ADI name is a raw
+    file like any other)."""
     p = Path(path)
     if p.is_dir():
         return next((f for f in formats() if f.matches_folder and f.matches_folder(p)), None)
-    return format_of_name(p.name, by_name=by_name)
+    fmt = format_of_name(p.name, by_name=by_name)
+    if by_name and (fmt is None or fmt.matches_name is None):
+        found = next((f for f in formats() if f.matches_file and f.matches_file(p)), None)
+        if found is not None:
+            return found
+    return fmt
 
 
 def _function_name(fn: Callable | None) -> str:

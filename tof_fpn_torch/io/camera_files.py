@@ -7,14 +7,17 @@ for ``tof-fpn clean``, written back) like the frame files of :mod:`.stored`.
 * ``<name>_depth_u16le_<H>x<W>.bin`` + ``<name>_ir_u16le_<H>x<W>.bin`` (``.raw`` too, any case):
   ADI ADTF3175 depth (mm) + IR (counts), raw uint16 LE, camera ``adtf3175``;
 * ``<name>_interleaved_<H>x<W>.bin``: ADI ADTF3175 interleaved, 5 bytes per pixel (depth u16 LE
-  mm, confidence u8, AB u16 LE), camera ``adtf3175``.
+  mm, confidence u8, AB u16 LE), camera ``adtf3175``;
+* a ``.h5`` / ``.hdf5`` of ESPROS's epc-tofcam-toolkit, found by its content (:mod:`.espros`): a
+  point cloud read as depth = z and its amplitude, camera ``espros_tofcam635``; its other
+  recordings (amplitude only, ...) are refused with the reason.
 
 ``<H>x<W>`` is rows x columns, any size.
 
 Each is a format of the table of formats (:mod:`.formats`), which chooses its reader and writer;
 this module answers the folder tools' questions by name.
 
-A recording container (``.mkv``, a bag) is read whole into a :class:`~.recording.Recording`; as
+A recording container (``.mkv``, a bag, an ESPROS ``.h5``) is read whole into a :class:`~.recording.Recording`; as
 a :class:`~.stored.FrameSet` it is float32 metres with NaN (``depth_scale`` 1) and keeps the
 reader's meta and timestamps, and :func:`~.stored.write_like` writes it as the package's recording
 ``.npz`` (there is no faithful writer for these containers). A vendor raw file keeps its own
@@ -63,13 +66,14 @@ ACCEPTED = (
     "<name>.npz / .h5 / .hdf5 (depth + amplitude); <name>_depth.<ext> + <name>_amplitude.<ext> "
     "(.png .tif .tiff .npy .bin .raw); Azure Kinect .mkv; ROS 1 .bag (RealSense too); ROS 2 bag "
     "(a folder with metadata.yaml, or .mcap / .db3); ADI <name>_depth_u16le_<H>x<W>.bin + "
-    "<name>_ir_u16le_<H>x<W>.bin and <name>_interleaved_<H>x<W>.bin"
+    "<name>_ir_u16le_<H>x<W>.bin and <name>_interleaved_<H>x<W>.bin; ESPROS epc-tofcam-toolkit "
+    "point cloud .h5"
 )
 
 
 def is_camera_recording(path) -> bool:
-    """A recording container: a ``.mkv`` / ``.bag`` / ``.mcap`` / ``.db3`` file or a ROS 2 bag
-    folder."""
+    """A recording container: a ``.mkv`` / ``.bag`` / ``.mcap`` / ``.db3`` file, a ROS 2 bag
+    folder or an ESPROS toolkit ``.h5`` (by its content)."""
     fmt = format_for(path)
     return fmt is not None and fmt.holds == RECORDING
 

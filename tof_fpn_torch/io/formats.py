@@ -18,7 +18,8 @@ What a file holds decides how its functions are called:
 * ``"frame set"`` (``.npz``, HDF5): depth and amplitude in one file.
   ``reader(path, *, depth_scale=None, allow_empty=False)`` -> ``(depth, amplitude)``;
   ``writer(path, depth, amplitude, *, dtype="uint16", amplitude_dtype=None, depth_scale=None)``.
-* ``"recording"`` (an Azure Kinect ``.mkv``, ROS bags): a camera's container, read whole.
+* ``"recording"`` (an Azure Kinect ``.mkv``, ROS bags, an ESPROS toolkit ``.h5`` found by its
+  content): a camera's container, read whole.
   ``reader(path, *, depth_topic=None, amplitude_topic=None, depth_scale=None,
   allow_empty=False)`` -> :class:`~.recording.Recording`; no writer (a container is written as
   the package's recording ``.npz``).
@@ -67,6 +68,7 @@ from .captures import (
     adi_pair_frame_sets,
     vendor_name,
 )
+from .espros import espros_frame_sets, is_espros_hdf5, read_espros_hdf5
 from .hdf5 import hdf5_frame_sets, hdf5_write_like, read_hdf5, write_hdf5
 from .images import (
     decode_png,
@@ -353,6 +355,17 @@ for _fmt in (
         rewriter=_one(adi_interleaved_write_like),
         matches_name=_vendor_kind("interleaved"),
         names="`<name>_interleaved_<H>x<W>.bin` (`.raw` too)",
+    ),
+    FileFormat(
+        "espros_hdf5",
+        RECORDING,
+        "ESPROS epc-tofcam-toolkit HDF5 recording (point cloud)",
+        reader=read_espros_hdf5,
+        stored_reader=espros_frame_sets,
+        rewriter=write_recording_like,
+        matches_file=is_espros_hdf5,
+        names="`.h5` / `.hdf5` by its content: root attribute `image_type`, datasets `frames_0`, "
+        "`timestamps`",
     ),
 ):
     register(_fmt)

@@ -7,9 +7,11 @@ decoding them (the folder tools group files by camera with it, ``tof-fpn clean``
 * HDF5: the shapes of the ``depth`` datasets of the groups holding ``depth`` and ``amplitude``
   (no data read);
 * ADI vendor files: the size in the name;
+* ESPROS epc-tofcam-toolkit HDF5 files: a point cloud's region of interest (its root attributes),
+  the last two axes of an amplitude-only recording;
 * raw files: the ``height`` / ``width`` given (the file does not state one).
 
-Recording containers (``.mkv``, bags) are not opened: ``[]``, as for any file whose header cannot
+The other recording containers (``.mkv``, bags) are not opened: ``[]``, as for any file whose header cannot
 be read (its reader says why when the file is read).
 """
 
@@ -23,6 +25,7 @@ import numpy as np
 
 from ._table import CAMERA_FILE, format_for
 from .captures import vendor_name
+from .espros import espros_frame_sizes
 
 __all__ = ["frame_sizes"]
 
@@ -79,7 +82,14 @@ def _hdf5(path) -> list[tuple[int, ...]]:
     return sizes
 
 
-_BY_FORMAT = {"png": _png, "tiff": _tiff, "npy": _npy, "npz": _npz, "hdf5": _hdf5}
+_BY_FORMAT = {
+    "png": _png,
+    "tiff": _tiff,
+    "npy": _npy,
+    "npz": _npz,
+    "hdf5": _hdf5,
+    "espros_hdf5": espros_frame_sizes,
+}
 
 
 def frame_sizes(path, *, height: int | None = None, width: int | None = None) -> list[tuple]:
