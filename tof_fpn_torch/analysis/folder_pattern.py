@@ -275,10 +275,11 @@ FREQUENCIES_HZ: tuple[float, ...] = (
     10e6, 12e6, 15e6, 16e6, K.CAMCUBE_MODULATION_FREQUENCY_HZ, 24e6, 30e6, 40e6, 50e6, 60e6,
     80e6, 100e6,
 )  # fmt: skip
-#: the read-out model is chosen when its held-out loss is below the offset model's by this share
-READOUT_MARGIN = 0.02
+#: the read-out model (two more profiles) is chosen when its held-out loss is below the offset
+#: model's by this share
+READOUT_MARGIN = 0.15
 #: the amplitude floor of the ``1 / A`` basis, as a share of the median amplitude
-AMPLITUDE_FLOOR = 0.05
+AMPLITUDE_FLOOR = 0.2
 
 
 def _basis(d: torch.Tensor, amp: torch.Tensor, f_hz: float) -> tuple[torch.Tensor, float]:
@@ -346,17 +347,25 @@ def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = N
             wt = w0 * _tukey(u)
         if not bool(wt.gt(0).any()):
             return shifted.new_zeros(k_ch, w), float("inf")
+        # every (shift, channel) pair at once: a batched product over the pixels of each column
+        flat = shifted.reshape(3 * k_ch, -1, m).permute(2, 0, 1)  # (m, 3K, N*H)
+        kappa = torch.tensor(_KAPPA, dtype=flat.dtype).repeat_interleave(k_ch)  # (3K,)
+        weighted = flat * wt.reshape(1, -1, m).permute(2, 0, 1)
+        g = torch.bmm(weighted, flat.transpose(1, 2)) * (kappa[:, None] * kappa[None, :])
+        r = (weighted * e0.reshape(1, -1, m).permute(2, 0, 1)).sum(2) * kappa  # (m, 3K)
+        # (shift k, channel a) of column x is unknown a * W + x + k
+        pos = torch.arange(k_ch).repeat(3) * w + torch.arange(3).repeat_interleave(k_ch)
+        unknown = pos[None, :] + idx[:, None]  # (m, 3K)
         mat = shifted.new_zeros(k_ch * w, k_ch * w)
-        rhs = shifted.new_zeros(k_ch * w)
-        for k in range(3):
-            bk = shifted[k] * wt  # (K, N, H, m)
-            rhs.index_add_(0, (torch.arange(k_ch)[:, None] * w + k + idx).flatten(),
-                           (_KAPPA[k] * (bk * e0).sum((1, 2))).flatten())  # fmt: skip
-            for l_ in range(3):
-                g = torch.einsum("anhx,bnhx->abx", bk, shifted[l_]) * (_KAPPA[k] * _KAPPA[l_])
-                rows = (torch.arange(k_ch)[:, None, None] * w + k + idx).expand(k_ch, k_ch, m)
-                cols = (torch.arange(k_ch)[None, :, None] * w + l_ + idx).expand(k_ch, k_ch, m)
-                mat.index_put_((rows.flatten(), cols.flatten()), g.flatten(), accumulate=True)
+        mat.index_put_(
+            (
+                unknown[:, :, None].expand_as(g).flatten(),
+                unknown[:, None, :].expand_as(g).flatten(),
+            ),
+            g.flatten(),
+            accumulate=True,
+        )
+        rhs = shifted.new_zeros(k_ch * w).index_add_(0, unknown.flatten(), r.flatten())
         diag = torch.diagonal(mat)
         if fresh and it == 0:
             lam = [1e-2 * float(diag[:w].median())] * k_ch
@@ -554,6 +563,32 @@ def _agreement(a: torch.Tensor, b: torch.Tensor) -> tuple[float, float, float]:
     return ab / (math.sqrt(n) * v), ab / n, v
 
 
+def _confirmed(d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor | None, min_z: float):
+    """Each part learned on all scenes and on each half; ``(parts, kept)``: per part its RMS
+    (the columns' depth effect over the frames), the halves' agreement ``z`` and the factor
+    applied, and the kept (scaled) estimates (module docstring)."""
+    full = _learn(d, var, basis)
+    halves = [slice(0, None, 2), slice(1, None, 2)]
+    half_a, half_b = (_learn(d[h], var[h], None if basis is None else basis[:, h]) for h in halves)
+    parts, kept = {}, {}
+    for name in PARTS:
+        z, s, v = _agreement(half_a[name], half_b[name])
+        factor = s / (s + v / 2) if (s > 0 and z >= min_z) else 0.0
+        est = factor * full[name]
+        if name == "columns":  # its depth effect over the frames (the read-out's varies)
+            b = torch.ones_like(d)[None] if basis is None else basis
+            effect = torch.nan_to_num((est[:, None, None, :] * b).sum(0)[torch.isfinite(d)])
+            rms = float(effect.pow(2).mean().sqrt()) if effect.numel() else 0.0
+        else:
+            rms = float(est.pow(2).mean().sqrt()) if est.numel() else 0.0
+        if rms < MIN_RMS_MM:
+            factor, rms = 0.0, 0.0
+        parts[name] = {"rms_mm": round(rms, 4), "z": round(z, 2), "factor": round(factor, 4)}
+        if factor > 0:
+            kept[name] = est
+    return parts, kept
+
+
 def learn_folder_pattern(
     depth: torch.Tensor,
     amplitude: torch.Tensor | None = None,
@@ -628,26 +663,15 @@ def learn_folder_pattern(
     if amp is not None and w >= 5:
         freqs = FREQUENCIES_HZ if modulation_frequency_hz is None else (modulation_frequency_hz,)
         f_hz, evidence = _readout_model(d, var, amp, freqs)
-    basis, a_ref = (None, 1.0) if f_hz is None else _basis(d, amp, f_hz)
-    full = _learn(d, var, basis)
-    halves = [slice(0, None, 2), slice(1, None, 2)]
-    half_a, half_b = (_learn(d[h], var[h], None if basis is None else basis[:, h]) for h in halves)
-    parts, kept = {}, {}
-    for name in PARTS:
-        z, s, v = _agreement(half_a[name], half_b[name])
-        factor = s / (s + v / 2) if (s > 0 and z >= min_z) else 0.0
-        est = factor * full[name]
-        if name == "columns":  # its depth effect over the frames (the read-out's varies)
-            b = torch.ones_like(d)[None] if basis is None else basis
-            effect = torch.nan_to_num((est[:, None, None, :] * b).sum(0)[torch.isfinite(d)])
-            rms = float(effect.pow(2).mean().sqrt()) if effect.numel() else 0.0
-        else:
-            rms = float(est.pow(2).mean().sqrt()) if est.numel() else 0.0
-        if rms < MIN_RMS_MM:
-            factor, rms = 0.0, 0.0
-        parts[name] = {"rms_mm": round(rms, 4), "z": round(z, 2), "factor": round(factor, 4)}
-        if factor > 0:
-            kept[name] = est
+    # the read-out model first, where the held-out half preferred it; offsets when its columns
+    # are not confirmed by the two halves
+    for f in ([f_hz] if f_hz is not None else []) + [None]:
+        basis, a_ref = (None, 1.0) if f is None else _basis(d, amp, f)
+        parts, kept = _confirmed(d, var, basis, min_z)
+        if "columns" in kept or f is None:
+            break
+        evidence["readout_not_confirmed"] = parts["columns"]
+    f_hz = f
     if not kept:
         return LearnedPattern(
             None,

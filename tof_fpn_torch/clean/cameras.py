@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 from ..io.formats import RECORDING, format_for
 from ..io.headers import frame_sizes
+from ..runtime import FixedPatternCorrection, PatternCorrection
 from .config import CleanConfig
 from .measure import finite_values
 from .pipeline import Calibration, CleanPipeline, build_pipeline, describe, stage_line
@@ -32,6 +33,7 @@ from .plan import Job
 from .work import NoFramesError, read_jobs
 
 __all__ = [
+    "learned_patterns",
     "UNKNOWN_SIZE",
     "UNMEASURED",
     "Camera",
@@ -164,3 +166,19 @@ def start_fields(cameras: list[Camera]) -> dict:
     :meth:`Camera.record`) and ``pipeline``, the one camera's (None with several)."""
     one = finite_values(describe(cameras[0].pipeline)) if len(cameras) == 1 else None
     return {"pipeline": one, "cameras": [c.record() for c in cameras if c.key is not None]}
+
+
+def learned_patterns(cameras: list[Camera]) -> dict:
+    """File name -> the (H, W) offsets in mm its camera's pipeline removes first (a learned
+    :class:`~tof_fpn_torch.runtime.PatternCorrection`'s offsets), for the figure."""
+    out = {}
+    for cam in cameras:
+        stage = cam.pipeline.stage("pattern")
+        if not isinstance(stage, PatternCorrection):
+            continue
+        for part in stage.corrections:
+            if isinstance(part, FixedPatternCorrection):
+                offsets = part.offset.double().cpu() * 1e3  # (H, W): learned with rows
+                out.update({job.name: offsets.numpy() for job in cam.jobs})
+                break
+    return out

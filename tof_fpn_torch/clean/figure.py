@@ -126,7 +126,7 @@ def report_figure(
 
     Args:
         pattern_mm: a learned fixed pattern, (H, W) array-like in mm, drawn as an extra panel
-            (none by default).
+            (none by default); or a dict file name -> pattern (each file's camera's).
         records: the run's manifest records (default: read from ``OUTPUT/manifest.jsonl``).
     """
     if records is None:
@@ -153,6 +153,8 @@ def report_figure(
     lim = difference_limit(change)
 
     plt = pyplot()
+    if isinstance(pattern_mm, dict):  # one per camera: the shown file's
+        pattern_mm = pattern_mm.get(name)
     pattern = None if pattern_mm is None else np.asarray(pattern_mm, dtype=np.float64)
     if pattern is not None and pattern.ndim != 2:
         raise ValueError(f"pattern_mm must be an (H, W) array, got shape {pattern.shape}")

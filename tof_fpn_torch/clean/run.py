@@ -30,7 +30,7 @@ import torch
 from tqdm import tqdm
 
 from .. import __version__
-from .cameras import Camera, build_cameras, stage_lines, start_fields
+from .cameras import Camera, build_cameras, learned_patterns, stage_lines, start_fields
 from .config import CleanConfig, config_to_toml, load_config
 from .figure import report_figure
 from .manifest import Manifest, finished, now, read_manifest
@@ -314,7 +314,7 @@ def _run(output, config, jobs, cameras: list[Camera], report: CleanReport, run: 
         report.seconds = time.perf_counter() - t0
         report.interrupted = caught[0] if caught else None
         if run.figure and report.done and report.interrupted is None:
-            report.figure = _figure(output, jobs, config)
+            report.figure = _figure(output, jobs, config, learned_patterns(cameras))
         man.write(
             {
                 "event": "end", "run": token, "done": report.done, "failed": report.failed,
@@ -383,10 +383,10 @@ def _consume(stream, man: Manifest, report: CleanReport, total: int, progress, c
         bar.close()
 
 
-def _figure(output: str, jobs, config: CleanConfig) -> str | None:
+def _figure(output: str, jobs, config: CleanConfig, patterns=None) -> str | None:
     """``OUTPUT/report.png`` (its path), or why it was not drawn: the files are cleaned anyway."""
     try:
-        return report_figure(output, jobs, config)
+        return report_figure(output, jobs, config, pattern_mm=patterns)
     except Exception as exc:  # noqa: BLE001
         return f"not drawn: {type(exc).__name__}: {exc}"
 
