@@ -4,8 +4,8 @@ parallel reading (and, on the CPU, computing and writing).
 * ``workers = 0``: every step in this process, group after group.
 * ``workers = N`` on the CPU: ``N`` DataLoader worker processes each load, compute (one torch
   thread each) and write whole groups; this process only records the results.
-* ``workers = N`` on a GPU: the workers load (decode); this process computes on the GPU, batch
-  after batch, and ``N`` threads encode and write.
+* ``workers = N`` on a GPU: the workers load (decode); this process computes on the GPU, frame
+  after frame, and ``N`` threads encode and write.
 
 Each group of files is ``(jobs, todo, camera)``: ``camera`` indexes the pipeline its files run
 through (one per camera group, :mod:`.cameras`).
@@ -64,7 +64,7 @@ class _Groups(Dataset):
         group = load_group(jobs, todo, self.config)
         if self.pipelines is None:
             return camera, group
-        compute_group(self.pipelines[camera], group, self.config.batch, "cpu")
+        compute_group(self.pipelines[camera], group, "cpu")
         return write_group(group, self.token, self.root, self.config)
 
 
@@ -87,7 +87,7 @@ def run_local(
             if stop():
                 return
             group = load_group(jobs, todo, config)
-            compute_group(pipelines[camera], group, config.batch, device)
+            compute_group(pipelines[camera], group, device)
             yield write_group(group, token, root, config)
         return
     device = torch.device(device)
@@ -113,7 +113,7 @@ def run_local(
         with ThreadPoolExecutor(workers) as pool:
             pending: deque = deque()
             for camera, group in it:
-                compute_group(pipelines[camera], group, config.batch, device)
+                compute_group(pipelines[camera], group, device)
                 pending.append(pool.submit(write_group, group, token, root, config))
                 while pending and (pending[0].done() or len(pending) > 2 * workers):
                     yield pending.popleft().result()

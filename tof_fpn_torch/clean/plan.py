@@ -273,8 +273,9 @@ def plan_jobs(input_path: str, output: str) -> list[Job]:
 
 
 def groups_of(jobs: list[Job], batch: int) -> list[list[Job]]:
-    """The runnable jobs in fixed groups of ``batch`` (by position in the sorted list), so that a
-    resumed run and the Ray engine form the same groups, and so the same compute batches."""
+    """The runnable jobs in groups of ``batch`` (by position in the sorted list): the unit of work
+    of a worker or a Ray task. The bytes written do not depend on the groups (every frame is
+    computed alone, :mod:`.work`)."""
     runnable = [j for j in jobs if j.error is None]
     return [runnable[i : i + batch] for i in range(0, len(runnable), batch)]
 

@@ -12,11 +12,11 @@ Dataflow (one row per group of files and its camera; ``batch_size=1`` row per ca
       .map_batches(_write)                       tasks: encode, temporary name, rename
       .iter_batches()                            the driver appends the records to the manifest
 
-Everything that decides the bytes written is in the group (the same files, the same batches), so
-the files equal the local engine's byte for byte (tested). The driver keeps the resume logic: it
-plans, reads the manifest and submits only groups with unfinished files. Workers write the output
-files themselves, so on a real cluster OUTPUT (and INPUT) must be one shared file system mounted at
-the same path on every node, and ``tof_fpn_torch`` importable there (docs/clean.md).
+Every frame is computed alone (:mod:`.work`), so the bytes written depend on neither the groups nor
+the engine: the files equal the local engine's byte for byte (tested). The driver keeps the resume
+logic: it plans, reads the manifest and submits only groups with unfinished files. Workers write
+the output files themselves, so on a real cluster OUTPUT (and INPUT) must be one shared file system
+mounted at the same path on every node, and ``tof_fpn_torch`` importable there (docs/clean.md).
 """
 
 from __future__ import annotations
@@ -50,17 +50,16 @@ class _Compute:
     """An actor holding the pipelines, one per camera (built once on the driver, shipped
     pickled); a group runs through its camera's."""
 
-    def __init__(self, pipelines_blob: bytes, batch: int, device: str) -> None:
+    def __init__(self, pipelines_blob: bytes, device: str) -> None:
         torch.set_num_threads(1)
         self.device = torch.device(device)
         self.pipelines = [p.to(self.device) for p in pickle.loads(pipelines_blob)]
-        self.batch = batch
 
     def __call__(self, batch: dict) -> dict:
         out = []
         for blob in batch["payload"]:
             camera, group = pickle.loads(blob)
-            group = compute_group(self.pipelines[camera], group, self.batch, self.device)
+            group = compute_group(self.pipelines[camera], group, self.device)
             out.append(pickle.dumps(group))
         return {"payload": np.array(out, dtype=object)}
 
@@ -131,11 +130,11 @@ def run_ray(
         ds = ray.data.from_items(items, override_num_blocks=len(items))
         ds = ds.map_batches(_load, batch_size=1, fn_kwargs={"config": config})
         blob = pickle.dumps([p.cpu() for p in pipelines])
-        size, dev = config.batch, "cuda" if gpu else "cpu"
+        dev = "cuda" if gpu else "cpu"
 
         class _Bound(_Compute):  # the module travels with the class, not as an object-store arg
             def __init__(self) -> None:
-                super().__init__(blob, size, dev)
+                super().__init__(blob, dev)
 
         ds = ds.map_batches(
             _Bound,

@@ -1,14 +1,14 @@
 """The three steps of ``tof-fpn clean`` on one group of jobs, shared by the local and Ray engines:
-:func:`load_group` (decode), :func:`compute_group` (the torch pipeline, batched),
-:func:`write_group` (encode, write to temporary names, rename). Their inputs and outputs are plain
-picklable objects, so each step can run in another process (``DataLoader`` workers, Ray tasks and
-actors).
+:func:`load_group` (decode), :func:`compute_group` (the torch pipeline), :func:`write_group`
+(encode, write to temporary names, rename). Their inputs and outputs are plain picklable objects,
+so each step can run in another process (``DataLoader`` workers, Ray tasks and actors).
 
-Batches: the frames of a group (its files in order, each file's frames in order) are split by
-frame shape and cut into batches of ``batch`` frames. A group is fixed by the sorted file list
-(:func:`~.plan.groups_of`), so every frame meets the same batch in every run, resumed or not, on
-either engine (batched torch kernels differ in the last bits between batch sizes). A resumed run
-recomputes a group in full when any of its files is unfinished and writes only those.
+Every frame runs through the frame stages alone, one frame per call: batched torch kernels
+(convolutions, matrix products, reductions over the batch) differ in the last bits between batch
+sizes and between a frame's positions in a batch, so a frame computed with others would depend on
+which frames it met. Alone, a frame's cleaned depth depends on that frame and the pipeline only:
+the same input gives the same output bytes whatever ``batch`` (files per group), ``workers`` and
+engine, resumed or not. A resumed run reads and computes only its unfinished files.
 
 Failures are per file: a file that cannot be read, decoded, computed or written gets a
 ``failed`` record with the reason and leaves nothing under its output names (temporary files are
@@ -60,7 +60,6 @@ class Loaded:
     """One job after :func:`load_group` (and :func:`compute_group`)."""
 
     job: Job
-    write: bool
     sets: list[FrameSet] | None = None
     tensors: list[tuple[torch.Tensor, torch.Tensor]] | None = None
     cleaned: list[torch.Tensor] | None = None
@@ -89,11 +88,13 @@ def reason(exc: BaseException) -> str:
 
 
 def load_group(jobs: list[Job], todo: set[str], config: CleanConfig) -> list[Loaded]:
-    """Read and decode every job of a group (``todo``: the names to write; the others are read
-    only to complete the group's batches)."""
+    """Read and decode the jobs of a group named in ``todo`` (the names to write; the others,
+    finished by an earlier run, are neither read nor computed)."""
     out = []
     for job in jobs:
-        item = Loaded(job, job.name in todo)
+        if job.name not in todo:
+            continue
+        item = Loaded(job)
         t0 = time.perf_counter()
         try:
             item.identity = input_identity(job.inputs)
@@ -125,7 +126,7 @@ def read_jobs(jobs: list[Job], config: CleanConfig, limit: int | None = None):
         if job.error is not None:
             failures.append((job.name, job.error))
             continue
-        (item,) = load_group([job], set(), config)
+        (item,) = load_group([job], {job.name}, config)
         if item.error is not None:
             failures.append((job.name, item.error))
             continue
@@ -158,79 +159,84 @@ def _unusable(item: Loaded) -> str:
     return "no frame with a valid pixel"
 
 
-def _frame_records(records: dict, i: int) -> dict:
-    """Frame ``i``'s share of a batch's records: {step: {field: float}} of the (B,) fields."""
+def _frame_records(records: dict) -> dict:
+    """One frame's records: {step: {field: float}} of the (1,) fields."""
     return {
-        step: {k: float(v[i]) for k, v in rec.items() if v.dim() == 1}
+        step: {k: float(v[0]) for k, v in rec.items() if v.dim() == 1}
         for step, rec in records.items()
     }
 
 
 def compute_group(
-    pipeline: torch.nn.Module, group: list[Loaded], batch: int, device: torch.device | str = "cpu"
+    pipeline: torch.nn.Module, group: list[Loaded], device: torch.device | str = "cpu"
 ) -> list[Loaded]:
-    """Run ``pipeline`` on the frames of the group's readable jobs, ``batch`` frames at a time
-    per frame shape (module docstring), then its sequence stages per frame set; fills
-    ``cleaned`` (CPU tensors), the records, the kept maps and the compute time."""
+    """Run ``pipeline`` on each frame of the group's readable jobs alone (module docstring), then
+    its sequence stages per frame set; fills ``cleaned`` (CPU tensors), the records, the kept maps
+    and the compute time."""
     device = torch.device(device)
     keep = [(step, f) for step, fields in pipeline.keep_maps.items() for f in fields]
-    slots = []  # (shape, item, set index, frame index)
-    parts: dict[tuple[int, int], list[tuple[int, torch.Tensor, dict, dict]]] = {}
     for item in group:
         if item.error is not None:
             continue
-        item.cleaned = [torch.empty(0)] * len(item.tensors)
-        for s, (depth, amplitude) in enumerate(item.tensors):
-            thin = too_thin(depth.shape)
-            has = valid_mask(depth, amplitude).flatten(1).any(1).tolist()
-            for f in range(depth.shape[0]):
-                if has[f] and not thin:
-                    slots.append((tuple(depth.shape[-2:]), item, s, f))
-                else:  # no valid pixel, or one pixel wide: no stage runs, the frame passes as it is
-                    zero = {f"{st}_{k}": torch.zeros_like(depth[f : f + 1]) for st, k in keep}
-                    parts.setdefault((id(item), s), []).append((f, depth[f : f + 1], {}, zero))
-                    if thin:
-                        item.thin += 1
-                    else:
-                        item.empty += 1
-    shapes = list(dict.fromkeys(k for k, *_ in slots))
-    for shape in shapes:
-        same = [x for x in slots if x[0] == shape]
-        for b0 in range(0, len(same), batch):
-            chunk = same[b0 : b0 + batch]
-            t0 = time.perf_counter()
-            try:
-                d = torch.cat([it.tensors[s][0][f : f + 1] for _, it, s, f in chunk]).to(device)
-                a = torch.cat([it.tensors[s][1][f : f + 1] for _, it, s, f in chunk]).to(device)
-                y, records = pipeline(d, a)
-                y = y.cpu()
-                records = {st: {k: v.cpu() for k, v in r.items()} for st, r in records.items()}
-            except Exception as exc:  # noqa: BLE001 -- recorded for the batch's files
-                for _, it, _, _ in chunk:
-                    it.error = f"compute failed: {reason(exc)}"
-                continue
-            share = (time.perf_counter() - t0) / len(chunk)
-            for i, (_, it, s, f) in enumerate(chunk):
-                maps = {f"{st}_{k}": records[st][k][i : i + 1] for st, k in keep}
-                parts.setdefault((id(it), s), []).append(
-                    (f, y[i : i + 1], _frame_records(records, i), maps)
-                )
-                it.seconds["compute"] += share
-    for item in group:
-        if item.error is None and item.cleaned is not None:
-            item.records = []
+        t0 = time.perf_counter()
+        try:
+            item.cleaned, item.records = [], []
             item.maps = {f"{st}_{k}": [] for st, k in keep} if keep else None
-            for s in range(len(item.cleaned)):
-                frames = sorted(parts.get((id(item), s), []), key=lambda p: p[0])
-                item.cleaned[s] = torch.cat([t for _, t, _, _ in frames])
-                item.records.append([r for _, _, r, _ in frames])
+            for depth, amplitude in item.tensors:
+                y, records, maps = _frames(pipeline, item, depth, amplitude, keep, device)
+                item.cleaned.append(y)
+                item.records.append(records)
                 for name in item.maps or {}:
-                    item.maps[name].append(torch.cat([m[name] for _, _, _, m in frames]))
+                    item.maps[name].append(maps[name])
+        except Exception as exc:  # noqa: BLE001 -- recorded for the file
+            item.error = f"compute failed: {reason(exc)}"
+        item.seconds["compute"] += time.perf_counter() - t0
+        if item.error is None:
             _sequence(pipeline, item)
         if item.error is not None:
             item.cleaned = item.maps = None
         item.tensors = None  # not needed any more (and not to be pickled back)
     return group
+
+
+def _frames(
+    pipeline: torch.nn.Module,
+    item: Loaded,
+    depth: torch.Tensor,
+    amplitude: torch.Tensor,
+    keep: list[tuple[str, str]],
+    device: torch.device,
+) -> tuple[torch.Tensor, list[dict], dict[str, torch.Tensor]]:
+    """The frame stages on the (T, 1, H, W) frames of one frame set, one frame per call:
+    ``(cleaned, per-frame records, kept maps)``, on the CPU. Frames no stage can work on (no
+    valid pixel, one pixel wide) pass as they are, with zero maps and no record; counted in
+    ``item``."""
+    thin = too_thin(depth.shape)
+    has = valid_mask(depth, amplitude).flatten(1).any(1).tolist()
+    out, records = [], []
+    maps: dict[str, list[torch.Tensor]] = {f"{st}_{k}": [] for st, k in keep}
+    for f in range(depth.shape[0]):
+        if thin or not has[f]:
+            out.append(depth[f : f + 1])
+            records.append({})
+            for name in maps:
+                maps[name].append(torch.zeros_like(depth[f : f + 1]))
+            if thin:
+                item.thin += 1
+            else:
+                item.empty += 1
+            continue
+        # a copy of its own: the frame's memory never depends on the file or process it came from
+        d = depth[f : f + 1].to(device, copy=True)
+        a = amplitude[f : f + 1].to(device, copy=True)
+        y, rec = pipeline(d, a)
+        out.append(y.cpu())
+        records.append(_frame_records(rec))
+        for st, k in keep:
+            maps[f"{st}_{k}"].append(rec[st][k].cpu())
+    if not out:  # a frame set without frames
+        return depth, records, {name: torch.zeros_like(depth) for name in maps}
+    return torch.cat(out), records, {name: torch.cat(m) for name, m in maps.items()}
 
 
 def _sequence(pipeline: torch.nn.Module, item: Loaded) -> None:
@@ -320,8 +326,6 @@ def write_group(group: list[Loaded], token: str, root: str, config: CleanConfig)
     their manifest records (``root``: OUTPUT, to which the recorded output paths are relative)."""
     records = []
     for item in group:
-        if not item.write:
-            continue
         job = item.job
         rec = {"file": job.name, "time": None}
         if item.error is None:

@@ -7,9 +7,9 @@ from .base import Option
 
 __all__ = ["BATCH", "CALIBRATION_FRAMES", "FILE_OPTIONS", "ROUNDING"]
 
-#: Files per group and frames per compute batch (``batch``): the batches are fixed by the sorted
-#: file list, so that a resumed run or the Ray engine computes every frame in the same batch
-#: (batched torch kernels differ in the last bits between batch sizes).
+#: Files per group (``batch``): what a worker or a Ray task loads, computes and writes at a time.
+#: Every frame is computed alone (:mod:`tof_fpn_torch.clean.work`), so it does not change the
+#: output bytes.
 BATCH: int = 8
 #: Frames (the first in file order) on which ``auto`` / ``data`` stages are measured when the run
 #: starts (``calibration_frames``).
@@ -32,7 +32,9 @@ FILE_OPTIONS: tuple[Option, ...] = (
         "frames",
     ),
     Option(
-        Setting("batch", int, BATCH, "files per group, frames per batch", low=1), "files", "batch"
+        Setting("batch", int, BATCH, "files per group (a worker's unit of work)", low=1),
+        "files",
+        "batch",
     ),
     Option(
         Setting("depth_scale", float, None, "metres per stored depth unit", **_POSITIVE),
