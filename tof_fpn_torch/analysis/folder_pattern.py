@@ -71,7 +71,7 @@ MIN_Z = 6.0
 #: Tukey's biweight cut-off, in noise standard deviations of a second difference
 TUKEY_C = 3.0
 #: empirical Bayes iterations (the first one least squares)
-ITERATIONS = 8
+ITERATIONS = 6
 #: conjugate-gradient iterations of the pixel part per outer iteration
 CG_ITERATIONS = 60
 #: parts below this RMS (mm) are not worth applying
@@ -278,6 +278,10 @@ FREQUENCIES_HZ: tuple[float, ...] = (
 #: the read-out model (two more profiles) is chosen when its held-out loss is below the offset
 #: model's by this share
 READOUT_MARGIN = 0.15
+#: rows (columns) of each frame a column (row) profile is fitted on, at most
+PROFILE_LINES = 128
+#: the read-out model is tried where the offsets' columns agree between the halves this much
+READOUT_MIN_Z = 3.0
 #: the amplitude floor of the ``1 / A`` basis, as a share of the median amplitude
 AMPLITUDE_FLOOR = 0.2
 
@@ -374,7 +378,7 @@ def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = N
             if k_ch > 1:
                 lam += [1.0 / max(float((theta[1:] ** 2).mean()), 1e-8)] * (k_ch - 1)
         mat = mat + torch.diag(torch.tensor(lam, dtype=mat.dtype).repeat_interleave(w))
-        theta = torch.linalg.solve(mat, rhs).view(k_ch, w)
+        theta = torch.cholesky_solve(rhs[:, None], torch.linalg.cholesky(mat))[:, 0].view(k_ch, w)
         theta = theta - theta.mean(1, keepdim=True)
     return theta, _loss(terms, theta)
 
@@ -460,11 +464,15 @@ def _learn(
     d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor | None
 ) -> dict[str, torch.Tensor]:
     """Columns (the channels of ``basis``, offsets only when None), rows on what the columns
-    leave, pixels on what both leave; ``columns`` is (K, W)."""
+    leave, pixels on what both leave; ``columns`` is (K, W). A profile is the same down its
+    columns (along its rows): it is fitted on at most :data:`PROFILE_LINES` rows (columns) of
+    each frame."""
     b = torch.ones_like(d)[None] if basis is None else basis
-    theta, _ = _columns(_column_terms(d, var, b))
+    rows = slice(None, None, max(1, d.shape[1] // PROFILE_LINES))
+    theta, _ = _columns(_column_terms(d[:, rows], var[:, rows], b[:, :, rows]))
     d = d - (theta[:, None, None, :] * b).sum(0)
-    row = _profile(d, var, -2)
+    cols = slice(None, None, max(1, d.shape[2] // PROFILE_LINES))
+    row = _profile(d[:, :, cols], var[:, :, cols], -2)
     d = d - row[None, :, None]
     return {"columns": theta, "rows": row, "pixels": _pixels(d, var)}
 
@@ -473,24 +481,25 @@ def _readout_model(
     d: torch.Tensor, var: torch.Tensor, amp: torch.Tensor, frequencies: tuple[float, ...]
 ) -> tuple[float | None, dict]:
     """Whether the column pattern is a read-out offset (``~ 1 / A``) rather than a depth offset:
-    the frequency whose basis fits best (every 4th row, three iterations), then both models
-    learned on each half of the scenes and scored on the other half (the robust loss of
+    the frequency whose basis fits best (least squares on ~32 rows), then both models learned
+    on each half of the scenes and scored on the other half (on ~128 rows) (the robust loss of
     :func:`_columns`); the read-out model is chosen only when it predicts the held-out half
     better by :data:`READOUT_MARGIN`. ``(f or None, evidence)``."""
-    sub = slice(None, None, 4) if d.shape[1] >= 16 else slice(None)
+    sub = slice(None, None, max(1, d.shape[1] // 32))  # ~32 rows: the frequency's choice
     ds, vs, amps = d[:, sub], var[:, sub], amp[:, sub]
     fits = []
     for f in frequencies:
         b, _ = _basis(ds, amps, f)
-        fits.append((_columns(_column_terms(ds, vs, b), iterations=3)[1], f))
+        fits.append((_columns(_column_terms(ds, vs, b), iterations=1)[1], f))
     best_f = min(fits)[1]
     b_full, _ = _basis(d, amp, best_f)
     ones = torch.ones_like(d)[None]
     halves = (slice(0, None, 2), slice(1, None, 2))
     held = {}
     for name, basis in (("offset", ones), ("readout", b_full)):
-        terms = [_column_terms(d[h], var[h], basis[:, h]) for h in halves]
-        theta = [_columns(t)[0] for t in terms]
+        rows = slice(None, None, max(1, d.shape[1] // 128))  # ~128 rows: the model's choice
+        terms = [_column_terms(d[h, rows], var[h, rows], basis[:, h, rows]) for h in halves]
+        theta = [_columns(t, iterations=5)[0] for t in terms]
         held[name] = _loss(terms[1], theta[0]) + _loss(terms[0], theta[1])
     chosen = best_f if held["readout"] < (1 - READOUT_MARGIN) * held["offset"] else None
     return chosen, {
@@ -659,19 +668,21 @@ def learn_folder_pattern(
             reason=f"{still}{scenes} distinct scene(s), a pattern needs >= {min_scenes}",
         )
     d, var, amp = _merge(d, var, amp, groups)
-    f_hz, evidence = None, {}
-    if amp is not None and w >= 5:
+    # offsets first; where their columns show a pattern at all and there are amplitudes, the
+    # read-out model too, kept when the held-out half prefers it and the halves confirm it
+    parts, kept = _confirmed(d, var, None, min_z)
+    f_hz, evidence, a_ref = None, {}, 1.0
+    if amp is not None and w >= 5 and parts["columns"]["z"] >= READOUT_MIN_Z:
         freqs = FREQUENCIES_HZ if modulation_frequency_hz is None else (modulation_frequency_hz,)
         f_hz, evidence = _readout_model(d, var, amp, freqs)
-    # the read-out model first, where the held-out half preferred it; offsets when its columns
-    # are not confirmed by the two halves
-    for f in ([f_hz] if f_hz is not None else []) + [None]:
-        basis, a_ref = (None, 1.0) if f is None else _basis(d, amp, f)
-        parts, kept = _confirmed(d, var, basis, min_z)
-        if "columns" in kept or f is None:
-            break
-        evidence["readout_not_confirmed"] = parts["columns"]
-    f_hz = f
+        if f_hz is not None:
+            basis, a_ref = _basis(d, amp, f_hz)
+            parts_ro, kept_ro = _confirmed(d, var, basis, min_z)
+            if "columns" in kept_ro:
+                parts, kept = parts_ro, kept_ro
+            else:
+                evidence["readout_not_confirmed"] = parts_ro["columns"]
+                f_hz = None
     if not kept:
         return LearnedPattern(
             None,
