@@ -110,6 +110,10 @@ def test_no_learn_and_the_paper_stage_do_not_learn(tmp_path):
     assert "learned" not in off.stage
     assert CleanConfig(stage="paper").values()["learn"] is False
     assert CleanConfig().values()["learn"] is True
+    # a new preset on the command line over a configuration takes its own learn ...
+    assert CleanConfig().replace(stage="paper").values()["learn"] is False
+    # ... unless learn is chosen too
+    assert CleanConfig().replace(stage="paper", learn=True).values()["learn"] is True
 
 
 def test_calibrate_scenes_saves_what_clean_learns_and_pattern_applies_it(tmp_path, capsys):
@@ -175,3 +179,19 @@ def test_pattern_correction_applies_its_parts_in_order():
         PatternCorrection([])
     with pytest.raises(ValueError, match="must be a Stage"):
         PatternCorrection([torch.nn.Identity()])
+
+
+def test_the_espros_frames_of_one_pose_are_a_still_scene_and_come_out_unchanged(tmp_path):
+    """The real ESPROS point cloud (frames of one pose, then of other distances of the same
+    surface): one scene, so nothing is learned, and the depth is written as it was."""
+    from conftest import real_capture
+
+    from tof_fpn_torch import io as tio
+
+    src = real_capture("espros_tofcam635/point_cloud_w544c005_250527_134722.h5")
+    report = clean(str(src), str(tmp_path / "out"), figure=False)
+    assert report.status == 0
+    assert "no fixed pattern learned from 8 frame(s): a still scene" in report.stage
+    got = tio.read_recording(tmp_path / "out" / "point_cloud_w544c005_250527_134722.npz")
+    ref = tio.read_espros_hdf5(src)
+    assert torch.equal(got.depth.nan_to_num(), ref.depth.nan_to_num())

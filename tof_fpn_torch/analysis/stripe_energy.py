@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from ..runtime.noise import mad_to_sigma
@@ -171,10 +170,7 @@ def _lower_median(a: torch.Tensor, v: torch.Tensor) -> float:
     ``v`` has a pixel)."""
     k = (int(v.sum()) - 1) // 2
     a = torch.where(v, a, float("inf"))  # the invalid pixels sort last
-    if a.device.type == "cpu":  # a selection, not a sort
-        flat = a.reshape(-1).numpy()
-        return float(np.partition(flat, k)[k])
-    return float(a.reshape(-1).kthvalue(k + 1).values)
+    return float(a.reshape(-1).kthvalue(k + 1).values)  # a selection, not a sort
 
 
 def _quiet(v: torch.Tensor, hp: torch.Tensor, sigmas: float) -> torch.Tensor:

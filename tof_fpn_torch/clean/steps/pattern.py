@@ -31,6 +31,12 @@ def _resolve(values: dict) -> None:
         values["learn"] = values["stage"] == "auto"
 
 
+def _replace(old: dict, changes: dict) -> None:
+    """A new ``stage`` takes its preset's ``learn`` (unless it was chosen)."""
+    if "stage" in changes and changes["stage"] != old["stage"]:
+        changes.setdefault("learn", None)
+
+
 def _build(ctx: Context) -> nn.Module | None:
     path = ctx.config.pattern
     given = None if path is None else load_pattern(path)
@@ -48,8 +54,11 @@ def _build(ctx: Context) -> nn.Module | None:
         return given
     depth = c.depth
     if given is not None:  # learn what the given pattern leaves
-        with torch.no_grad():
-            depth = given(depth, c.amplitude)
+        try:
+            with torch.no_grad():
+                depth = given(depth, c.amplitude)
+        except ValueError as exc:
+            raise ValueError(f"pattern {path}: {exc}") from None
     learned = learn_folder_pattern(depth, c.amplitude)
     ctx.note(learned.summary())
     if learned.pattern is None:
@@ -110,4 +119,5 @@ STEP = Step(
     describe=_describe,
     phrase=_phrase,
     resolve=_resolve,
+    on_replace=_replace,
 )
