@@ -17,7 +17,8 @@ with ``D2`` the second difference along x (columns) or along x and y (pixels), `
 of a second difference (a per-frame ``k_i / A`` model fitted from the data, or one level per frame
 without amplitudes), ``rho`` quadratic first and then Tukey's biweight (edges, kinks and flying
 pixels get weight 0), and the white prior's ``sigma_P^2`` re-estimated from the solution (an
-empirical Bayes iteration: without a pattern it goes to zero). The profiles are solved exactly
+empirical Bayes iteration: the estimate's power plus its posterior variance, in the diagonal
+approximation; without a pattern it goes to zero). The profiles are solved exactly
 (a pentadiagonal system), the pixel part by conjugate gradients.
 
 What a scene can never be told apart from is left out: a smooth pattern (the low frequencies,
@@ -211,6 +212,17 @@ def _d2t(e: torch.Tensor, dim: int, n: int) -> torch.Tensor:
     return out
 
 
+def _d2t_squared(e: torch.Tensor, dim: int, n: int) -> torch.Tensor:
+    """The diagonal of ``D2^T diag(e) D2``: the adjoint with the squared kernel (1, 4, 1)."""
+    shape = list(e.shape)
+    shape[dim] = n
+    out = e.new_zeros(shape)
+    out.narrow(dim, 0, n - 2).add_(e)
+    out.narrow(dim, 1, n - 2).add_(4 * e)
+    out.narrow(dim, 2, n - 2).add_(e)
+    return out
+
+
 def _d2_var(var: torch.Tensor, dim: int) -> torch.Tensor:
     n = var.shape[dim]
     return var.narrow(dim, 0, n - 2) + 4 * var.narrow(dim, 1, n - 2) + var.narrow(dim, 2, n - 2)
@@ -253,6 +265,7 @@ def _profile(
     eye = torch.eye(n, dtype=d.dtype, device=d.device)
     k2 = _d2(eye, 0)  # (n-2, n)
     c = d.new_zeros(n)
+    post = d.new_zeros(n)  # the posterior variances, from the first solve on
     for it in range(iterations):
         if it == 0:
             w = w0
@@ -263,9 +276,13 @@ def _profile(
         g = (w * e0).sum(other)
         if not bool(cnt.gt(0).any()):
             return d.new_zeros(n)
-        lam = 1e-2 * float(cnt.median()) if it == 0 else 1.0 / max(float((c * c).mean()), 1e-8)
+        if it == 0:
+            lam = 1e-2 * float(cnt.median())
+        else:  # the prior's variance: the estimate's power and its posterior variance
+            lam = 1.0 / max(float((c * c).mean() + post.mean()), 1e-8)
         a = k2.T @ (cnt[:, None] * k2) + lam * eye
         c = torch.linalg.solve(a, k2.T @ g)
+        post = 1.0 / torch.diagonal(a)
     return c - c.mean()
 
 
@@ -343,6 +360,7 @@ def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = N
     idx = torch.arange(m)
     fresh = theta is None
     theta = shifted.new_zeros(k_ch, w) if theta is None else theta
+    post = shifted.new_zeros(k_ch * w)  # the posterior variances, from the first solve on
     for it in range(iterations):
         if fresh and it == 0:
             wt = w0
@@ -374,11 +392,13 @@ def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = N
         if fresh and it == 0:
             lam = [1e-2 * float(diag[:w].median())] * k_ch
         else:
-            lam = [1.0 / max(float((theta[0] ** 2).mean()), 1e-8)]
+            lam = [1.0 / max(float((theta[0] ** 2).mean() + post[:w].mean()), 1e-8)]
             if k_ch > 1:
-                lam += [1.0 / max(float((theta[1:] ** 2).mean()), 1e-8)] * (k_ch - 1)
+                prior = float((theta[1:] ** 2).mean() + post[w:].mean())
+                lam += [1.0 / max(prior, 1e-8)] * (k_ch - 1)
         mat = mat + torch.diag(torch.tensor(lam, dtype=mat.dtype).repeat_interleave(w))
         theta = torch.cholesky_solve(rhs[:, None], torch.linalg.cholesky(mat))[:, 0].view(k_ch, w)
+        post = 1.0 / torch.diagonal(mat)  # the posterior variances (diagonal approximation)
         theta = theta - theta.mean(1, keepdim=True)
     return theta, _loss(terms, theta)
 
@@ -413,6 +433,7 @@ def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) ->
     if not terms:
         return p
     lam = None
+    post = torch.zeros_like(p)  # the posterior variances, from the first solve on
     for it in range(iterations):
         rhs = torch.zeros_like(p)
         counts = []
@@ -427,7 +448,7 @@ def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) ->
         if lam is None:
             lam = 1e-2 * float(torch.stack([c.median() for _, _, c in counts]).mean())
         else:
-            lam = 1.0 / max(float((p * p).mean()), 1e-8)
+            lam = 1.0 / max(float((p * p).mean() + post.mean()), 1e-8)
         if lam <= 0:
             return torch.zeros_like(p)
 
@@ -438,6 +459,10 @@ def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) ->
             return out
 
         p = _cg(op, rhs, p)
+        diag = torch.full_like(p, lam)
+        for dim, n, cnt in counts:
+            diag += _d2t_squared(cnt, dim, n)
+        post = 1.0 / diag  # the posterior variances (diagonal approximation)
     return p - p.mean()
 
 
@@ -580,13 +605,21 @@ def _confirmed(d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor | None, m
     halves = [slice(0, None, 2), slice(1, None, 2)]
     half_a, half_b = (_learn(d[h], var[h], None if basis is None else basis[:, h]) for h in halves)
     parts, kept = {}, {}
+    b = torch.ones_like(d)[None] if basis is None else basis
+    seen = torch.isfinite(d)
     for name in PARTS:
-        z, s, v = _agreement(half_a[name], half_b[name])
+        if name == "columns" and basis is not None:
+            # a read-out's channels can trade off where the phase hardly varies: the halves are
+            # compared on what they do to the depth of every frame, not on their profiles
+            pair = [torch.nan_to_num((h["columns"][:, None, None, :] * b).sum(0)[seen])
+                    for h in (half_a, half_b)]  # fmt: skip
+            z, s, v = _agreement(*pair)
+        else:
+            z, s, v = _agreement(half_a[name], half_b[name])
         factor = s / (s + v / 2) if (s > 0 and z >= min_z) else 0.0
         est = factor * full[name]
         if name == "columns":  # its depth effect over the frames (the read-out's varies)
-            b = torch.ones_like(d)[None] if basis is None else basis
-            effect = torch.nan_to_num((est[:, None, None, :] * b).sum(0)[torch.isfinite(d)])
+            effect = torch.nan_to_num((est[:, None, None, :] * b).sum(0)[seen])
             rms = float(effect.pow(2).mean().sqrt()) if effect.numel() else 0.0
         else:
             rms = float(est.pow(2).mean().sqrt()) if est.numel() else 0.0
