@@ -172,7 +172,7 @@ def test_pattern_correction_applies_its_parts_in_order():
     )
     d = 2.0 + 0.01 * torch.rand(2, 1, H, W, generator=g)
     a = 50 + 100 * torch.rand(2, 1, H, W, generator=g)
-    both = PatternCorrection([offsets, readout])
+    both = PatternCorrection([offsets, readout], confirm=False)
     assert torch.equal(both(d, a), readout(offsets(d, a), a))
     assert not torch.equal(both(d, a), offsets(readout(d, a), a))
     with pytest.raises(ValueError, match="at least one"):
@@ -195,3 +195,26 @@ def test_the_espros_frames_of_one_pose_are_a_still_scene_and_come_out_unchanged(
     got = tio.read_recording(tmp_path / "out" / "point_cloud_w544c005_250527_134722.npz")
     ref = tio.read_espros_hdf5(src)
     assert torch.equal(got.depth.nan_to_num(), ref.depth.nan_to_num())
+
+
+def test_a_correction_is_applied_only_to_the_frames_whose_roughness_it_lowers():
+    """Two frames of a smooth scene, one with the columns the correction removes, one without:
+    the first is corrected, the second (which the correction would roughen) comes out as it was,
+    and the record says which."""
+    g = torch.Generator().manual_seed(2)
+    cols = 0.004 * torch.randn(W, generator=g, dtype=torch.float64)
+    y, x = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
+    noise = 0.0005 * torch.randn(2, 1, H, W, generator=g, dtype=torch.float64)
+    scene = 2.0 + 0.002 * x.double() + 0.001 * y.double() + noise
+    frames = torch.stack([scene[0] + cols, scene[1]])
+    stage = PatternCorrection([FixedPatternCorrection(cols, height=H)])
+    out, rec = stage.run(frames)
+    assert rec["applied"].tolist() == [1.0, 0.0]
+    assert rec["roughness_change"][0] < -0.3 and rec["roughness_change"][1] > 0.3
+    assert torch.equal(out[1], frames[1])
+    assert torch.allclose(out[0], scene[0], atol=1e-12)
+    # without the confirmation both are corrected
+    forced, rec = PatternCorrection([FixedPatternCorrection(cols, height=H)], confirm=False).run(
+        frames
+    )
+    assert rec["applied"].tolist() == [1.0, 1.0] and not torch.equal(forced[1], frames[1])

@@ -150,7 +150,7 @@ def build_pipeline(
     notes: dict[str, str] = {}
     for step in steps():
         upto = len(built)
-        ctx = Context(config, lambda upto=upto: frames_for(upto))
+        ctx = Context(config, lambda upto=upto: frames_for(upto), built=dict(built))
         module = step.build(ctx)
         measured = measured or ctx.measured
         if module is not None:

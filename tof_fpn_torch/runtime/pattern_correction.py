@@ -8,13 +8,20 @@ column pattern grows like ``1 / A``, a read-out offset of the complex signal
 (:class:`~tof_fpn_torch.runtime.ComplexPatternCorrection`); a calibrated pattern file may come
 before them. :class:`PatternCorrection` applies them in order and carries, as text, what the
 pattern was learned from.
+
+**Confirmed per frame** (``confirm=True``): a fixed pattern is rough, a scene is smooth, so a
+correction that removes the frame's pattern lowers the mean absolute second difference of its
+depth, along the rows and down the columns, over the valid pixels (edges and kinks count the same
+before and after: an L1 measure is not dominated by them); a frame whose measure the correction
+does not lower is returned as it was, and the record says so (``applied``).
 """
 
 # no `from __future__ import annotations`: TorchScript reads the class-level attribute types below
 import torch
 from torch import nn
 
-from .stage import Stage, empty_record
+from .stage import RecordField, Stage
+from .validity import valid_mask
 
 __all__ = ["PatternCorrection"]
 
@@ -28,6 +35,7 @@ class PatternCorrection(Stage):
             :class:`~tof_fpn_torch.runtime.ComplexPatternCorrection`); at least one.
         source: what the pattern is (e.g. ``"learned"``, ``"file"``, ``"file+learned"``).
         learned: what it was learned from, as JSON text (empty: not learned).
+        confirm: apply it only to the frames whose roughness it lowers (module docstring).
 
     Shape:
         - depth: (B, C, H, W) of the corrections' size; amplitude: the same (a read-out
@@ -35,10 +43,17 @@ class PatternCorrection(Stage):
         - Output: same shape and dtype; invalid pixels unchanged (each correction keeps them).
     """
 
+    record = (
+        RecordField("applied", "1: the correction lowered the frame's roughness and was applied"),
+        RecordField("roughness_change", "relative change of the mean |second difference|"),
+    )
     source: str
     learned: str
+    confirm: bool
 
-    def __init__(self, corrections: list, source: str = "learned", learned: str = "") -> None:
+    def __init__(
+        self, corrections: list, source: str = "learned", learned: str = "", confirm: bool = True
+    ) -> None:
         super().__init__()
         if len(corrections) == 0:
             raise ValueError("corrections must hold at least one stage, got none")
@@ -48,9 +63,10 @@ class PatternCorrection(Stage):
         self.corrections = nn.ModuleList(corrections)
         self.source = str(source)
         self.learned = str(learned)
+        self.confirm = bool(confirm)
 
     def extra_repr(self) -> str:
-        return f"source={self.source!r}"
+        return f"source={self.source!r}, confirm={self.confirm}"
 
     def _run(
         self, depth: torch.Tensor, amplitude: torch.Tensor | None = None
@@ -58,4 +74,35 @@ class PatternCorrection(Stage):
         y = depth
         for c in self.corrections:
             y = c(y, amplitude)
-        return y, empty_record()
+        b = depth.shape[0]
+        before = _roughness(depth, amplitude)
+        after = _roughness(y, amplitude)
+        change = torch.where(before > 0, after / before.clamp_min(1e-30) - 1.0, 0.0)
+        if self.confirm:
+            keep = (after < before).view(b, 1, 1, 1)
+            y = torch.where(keep, y, depth)
+            applied = (after < before).to(depth.dtype)
+        else:
+            applied = torch.ones(b, dtype=depth.dtype, device=depth.device)
+        return y, {"applied": applied, "roughness_change": change.to(depth.dtype)}
+
+
+def _roughness(depth: torch.Tensor, amplitude: torch.Tensor | None) -> torch.Tensor:
+    """(B,) mean absolute second difference along the rows and down the columns over the valid
+    triples of each frame (all channels), float64."""
+    x = depth.double()
+    v = valid_mask(depth, amplitude)
+    x = torch.where(v, x, torch.zeros_like(x))
+    total = torch.zeros(x.shape[0], dtype=torch.float64, device=x.device)
+    count = torch.zeros_like(total)
+    if x.shape[-1] >= 3:
+        e = x[..., :-2] - 2 * x[..., 1:-1] + x[..., 2:]
+        ok = v[..., :-2] & v[..., 1:-1] & v[..., 2:]
+        total += torch.where(ok, e.abs(), torch.zeros_like(e)).flatten(1).sum(1)
+        count += ok.flatten(1).sum(1).double()
+    if x.shape[-2] >= 3:
+        e = x[..., :-2, :] - 2 * x[..., 1:-1, :] + x[..., 2:, :]
+        ok = v[..., :-2, :] & v[..., 1:-1, :] & v[..., 2:, :]
+        total += torch.where(ok, e.abs(), torch.zeros_like(e)).flatten(1).sum(1)
+        count += ok.flatten(1).sum(1).double()
+    return total / count.clamp_min(1.0)

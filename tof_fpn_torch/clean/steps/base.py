@@ -112,12 +112,15 @@ class Context:
             applied), or raising ``ValueError`` when the run has none.
         measured: set by a builder that used the calibration frames.
         notes: what the builder says about what it found (:meth:`note`).
+        built: the stages the earlier steps built, by step name.
     """
 
     config: Any
     calibration: Callable[[], Any]
     measured: bool = False
     notes: list[str] = field(default_factory=list)
+    #: the stages the earlier steps built (step name -> stage)
+    built: dict = field(default_factory=dict)
 
     def frames(self):
         """The calibration frames (and note that a stage was measured on them)."""

@@ -24,7 +24,7 @@ from ...build import (
     suppression_from_data,
     suppression_from_design,
 )
-from ...runtime import Destripe, FPNSuppression
+from ...runtime import Destripe, FPNSuppression, PatternCorrection
 from ...runtime.stage import Setting
 from .base import Context, Option, Step
 
@@ -178,6 +178,13 @@ def _data_stage(ctx: Context, destripe: nn.Module | None) -> FPNSuppression:
 
 def _build(ctx: Context) -> FPNSuppression | None:
     c = ctx.config
+    learned = ctx.built.get("pattern")
+    if isinstance(learned, PatternCorrection) and learned.learned and _measured_only(c):
+        ctx.note(
+            "the single-frame stages were not measured: the pattern the frames share is "
+            "removed instead (a stage measured on one frame can take a scene for stripes)"
+        )
+        return None
     destripe = None
     if c.destripe in _DESTRIPE_DIMS:
         destripe = Destripe(dim=_DESTRIPE_DIMS[c.destripe])
@@ -207,6 +214,12 @@ def _build(ctx: Context) -> FPNSuppression | None:
     if fpn is not None and fpn.filter is None and fpn.destripe is None:
         return None  # measured: nothing to do
     return fpn
+
+
+def _measured_only(c) -> bool:
+    """Whether every FPN piece of the configuration is measured on data (the auto preset's), so
+    that none was asked for by the user."""
+    return c.destripe in ("auto", "off") and c.notch in ("data", "off")
 
 
 def _describe(fpn: nn.Module | None) -> dict:

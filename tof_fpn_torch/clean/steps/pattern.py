@@ -94,6 +94,25 @@ def _phrase(info: dict) -> list[str]:
     return [f"fixed pattern ({info['pattern']})"]
 
 
+def _file_record(frames: list[dict]) -> dict | None:
+    applied = [f["applied"] for f in frames if "applied" in f]
+    if not applied:
+        return None
+    return {"applied": int(sum(a > 0.5 for a in applied)), "frames": len(applied)}
+
+
+def _summary(records: list[dict]) -> list[str]:
+    reports = [r["report"] for r in records if r.get("report")]
+    counts = [r["pattern"] for r in reports if r.get("pattern")]
+    if not counts:
+        return []
+    applied, frames = sum(c["applied"] for c in counts), sum(c["frames"] for c in counts)
+    line = f"fixed pattern removed from {applied} of {frames} frame(s)"
+    if applied < frames:
+        line += f"; {frames - applied} left as they were (it did not make them smoother)"
+    return [line]
+
+
 STEP = Step(
     name="pattern",
     options=(
@@ -120,4 +139,6 @@ STEP = Step(
     phrase=_phrase,
     resolve=_resolve,
     on_replace=_replace,
+    file_record=_file_record,
+    summary=_summary,
 )
