@@ -13,7 +13,8 @@ pattern was learned from.
 correction that removes the frame's pattern lowers the mean absolute second difference of its
 depth, along the rows and down the columns, over the valid pixels (edges and kinks count the same
 before and after: an L1 measure is not dominated by them); a frame whose measure the correction
-does not lower is returned as it was, and the record says so (``applied``).
+does not lower by :data:`CONFIRM_MARGIN` is returned as it was, and the record says so
+(``applied``).
 """
 
 # no `from __future__ import annotations`: TorchScript reads the class-level attribute types below
@@ -23,7 +24,11 @@ from torch import nn
 from .stage import RecordField, Stage
 from .validity import valid_mask
 
-__all__ = ["PatternCorrection"]
+__all__ = ["CONFIRM_MARGIN", "PatternCorrection"]
+
+#: a frame is corrected when the correction lowers its roughness by at least this share (the
+#: frames a pattern was learned on lend it some of their own noise: a marginal drop is no proof)
+CONFIRM_MARGIN = 0.02
 
 
 class PatternCorrection(Stage):
@@ -50,6 +55,7 @@ class PatternCorrection(Stage):
     source: str
     learned: str
     confirm: bool
+    margin: float
 
     def __init__(
         self, corrections: list, source: str = "learned", learned: str = "", confirm: bool = True
@@ -64,6 +70,7 @@ class PatternCorrection(Stage):
         self.source = str(source)
         self.learned = str(learned)
         self.confirm = bool(confirm)
+        self.margin = CONFIRM_MARGIN
 
     def extra_repr(self) -> str:
         return f"source={self.source!r}, confirm={self.confirm}"
@@ -79,9 +86,9 @@ class PatternCorrection(Stage):
         after = _roughness(y, amplitude)
         change = torch.where(before > 0, after / before.clamp_min(1e-30) - 1.0, 0.0)
         if self.confirm:
-            keep = (after < before).view(b, 1, 1, 1)
-            y = torch.where(keep, y, depth)
-            applied = (after < before).to(depth.dtype)
+            smoother = after < (1.0 - self.margin) * before
+            y = torch.where(smoother.view(b, 1, 1, 1), y, depth)
+            applied = smoother.to(depth.dtype)
         else:
             applied = torch.ones(b, dtype=depth.dtype, device=depth.device)
         return y, {"applied": applied, "roughness_change": change.to(depth.dtype)}

@@ -98,7 +98,12 @@ def _file_record(frames: list[dict]) -> dict | None:
     applied = [f["applied"] for f in frames if "applied" in f]
     if not applied:
         return None
-    return {"applied": int(sum(a > 0.5 for a in applied)), "frames": len(applied)}
+    change = [f["roughness_change"] for f in frames if "roughness_change" in f]
+    return {
+        "applied": int(sum(a > 0.5 for a in applied)),
+        "frames": len(applied),
+        "roughness_change": round(sum(change) / len(change), 5),
+    }
 
 
 def _summary(records: list[dict]) -> list[str]:
