@@ -169,3 +169,20 @@ def test_bad_arguments_are_refused(kwargs, match):
 def test_tiny_frames_learn_nothing():
     learned = learn_folder_pattern(torch.rand(6, 1, 2, 50) + 1)
     assert learned.pattern is None and "too small" in learned.reason
+
+
+@pytest.mark.parametrize("dim", [-1, -2])
+def test_the_second_difference_adjoint_is_its_transpose(dim):
+    """<D2 x, e> = <x, D2^T e>, and the squared kernel gives the diagonal of D2^T diag(e) D2."""
+    g = torch.Generator().manual_seed(4)
+    x = torch.randn(2, 7, 9, generator=g, dtype=torch.float64)
+    e = torch.randn(fp._d2(x, dim).shape, generator=g, dtype=torch.float64)
+    n = x.shape[dim]
+    assert torch.allclose((fp._d2(x, dim) * e).sum(), (x * fp._d2t(e, dim, n)).sum())
+    w = torch.rand(fp._d2(x, dim).shape, generator=g, dtype=torch.float64)
+    diag = fp._d2t(w, dim, n, (1.0, 4.0, 1.0))
+    for idx in [(0, 3, 4), (1, 0, 0), (1, 6, 8)]:
+        unit = torch.zeros_like(x)
+        unit[idx] = 1.0
+        d = fp._d2(unit, dim)
+        assert torch.allclose(diag[idx], (w * d * d).sum())

@@ -202,24 +202,14 @@ def _d2(x: torch.Tensor, dim: int) -> torch.Tensor:
     return x.narrow(dim, 0, n - 2) - 2 * x.narrow(dim, 1, n - 2) + x.narrow(dim, 2, n - 2)
 
 
-def _d2t(e: torch.Tensor, dim: int, n: int) -> torch.Tensor:
+def _d2t(e: torch.Tensor, dim: int, n: int, kernel=(1.0, -2.0, 1.0)) -> torch.Tensor:
+    """The adjoint of :func:`_d2` (length ``n - 2`` back to ``n`` along ``dim``); with the
+    squared kernel (1, 4, 1), the diagonal of ``D2^T diag(e) D2``."""
     shape = list(e.shape)
     shape[dim] = n
     out = e.new_zeros(shape)
-    out.narrow(dim, 0, n - 2).add_(e)
-    out.narrow(dim, 1, n - 2).sub_(2 * e)
-    out.narrow(dim, 2, n - 2).add_(e)
-    return out
-
-
-def _d2t_squared(e: torch.Tensor, dim: int, n: int) -> torch.Tensor:
-    """The diagonal of ``D2^T diag(e) D2``: the adjoint with the squared kernel (1, 4, 1)."""
-    shape = list(e.shape)
-    shape[dim] = n
-    out = e.new_zeros(shape)
-    out.narrow(dim, 0, n - 2).add_(e)
-    out.narrow(dim, 1, n - 2).add_(4 * e)
-    out.narrow(dim, 2, n - 2).add_(e)
+    for k, c in enumerate(kernel):
+        out.narrow(dim, k, n - 2).add_(c * e)
     return out
 
 
@@ -461,7 +451,7 @@ def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) ->
         p = _cg(op, rhs, p)
         diag = torch.full_like(p, lam)
         for dim, n, cnt in counts:
-            diag += _d2t_squared(cnt, dim, n)
+            diag += _d2t(cnt, dim, n, (1.0, 4.0, 1.0))
         post = 1.0 / diag  # the posterior variances (diagonal approximation)
     return p - p.mean()
 
