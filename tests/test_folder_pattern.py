@@ -186,3 +186,28 @@ def test_the_second_difference_adjoint_is_its_transpose(dim):
         unit[idx] = 1.0
         d = fp._d2(unit, dim)
         assert torch.allclose(diag[idx], (w * d * d).sum())
+
+
+@pytest.mark.parametrize(("h", "w"), [(8, 9), (200, 8), (9, 400), (17, 23)])
+@pytest.mark.parametrize("holes", [0.3, 0.95])
+@pytest.mark.parametrize("with_amplitude", [True, False])
+def test_small_frames_and_frames_mostly_holes_never_fail(h, w, holes, with_amplitude):
+    """Columns or rows without a valid pixel, frames nearly empty: the estimate is finite or
+    nothing, never an error (a singular system is no pattern)."""
+    rng = np.random.default_rng(h * w)
+    x = np.arange(w) / w
+    d = 1.5 + rng.uniform(0, 1, (6, 1, 1, 1)) + rng.uniform(-0.5, 0.5, (6, 1, 1, 1)) * x
+    d = d + 0.002 * rng.normal(size=(6, 1, h, w)) + 0.004 * rng.normal(size=w)
+    d[rng.uniform(size=d.shape) < holes] = np.nan
+    d[:, :, :, : w // 2 + 1] = np.nan  # over half the columns never seen
+    amp = torch.from_numpy(rng.uniform(10, 300, d.shape)) if with_amplitude else None
+    learned = learn_folder_pattern(torch.from_numpy(d), amp)
+    if learned.pattern is not None:
+        assert torch.isfinite(learned.pattern.offset_map()).all()
+    else:
+        assert learned.reason
+
+
+def test_frames_under_eight_a_side_learn_nothing():
+    learned = learn_folder_pattern(torch.rand(6, 1, 7, 50, dtype=torch.float64) + 1)
+    assert learned.pattern is None and "too small (< 8 a side)" in learned.reason

@@ -67,6 +67,9 @@ MIN_SCENES = 4
 #: two frames show one scene when the spread of their difference is below this many times the
 #: spread of its white part (:func:`_scenes`)
 SAME_SCENE = 2.0
+#: the shortest side of a frame a pattern is learned on (fewer columns or rows cannot show
+#: their agreement between two halves)
+MIN_SIDE = 8
 #: a part is kept when its two halves' agreement reaches this significance
 MIN_Z = 6.0
 #: Tukey's biweight cut-off, in noise standard deviations of a second difference
@@ -218,6 +221,21 @@ def _d2_var(var: torch.Tensor, dim: int) -> torch.Tensor:
     return var.narrow(dim, 0, n - 2) + 4 * var.narrow(dim, 1, n - 2) + var.narrow(dim, 2, n - 2)
 
 
+def _first_prior(weights: torch.Tensor) -> float:
+    """The first iteration's prior weight: 1 % of the typical observation weight (of the
+    observed unknowns: a column with no valid pixel does not count), > 0."""
+    seen = weights[weights > 0]
+    return 1e-2 * float(seen.median()) if seen.numel() else 1.0
+
+
+def _spd_solve(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a^-1 b`` for a symmetric positive definite ``a`` (Cholesky); zeros if it is not."""
+    chol, info = torch.linalg.cholesky_ex(a)
+    if int(info) != 0:
+        return torch.zeros_like(b)
+    return torch.cholesky_solve(b[:, None], chol)[:, 0]
+
+
 def _tukey(u: torch.Tensor) -> torch.Tensor:
     return torch.where(u < 1, (1 - u * u) ** 2, torch.zeros_like(u))
 
@@ -267,11 +285,11 @@ def _profile(
         if not bool(cnt.gt(0).any()):
             return d.new_zeros(n)
         if it == 0:
-            lam = 1e-2 * float(cnt.median())
+            lam = _first_prior(cnt)
         else:  # the prior's variance: the estimate's power and its posterior variance
             lam = 1.0 / max(float((c * c).mean() + post.mean()), 1e-8)
         a = k2.T @ (cnt[:, None] * k2) + lam * eye
-        c = torch.linalg.solve(a, k2.T @ g)
+        c = _spd_solve(a, k2.T @ g)
         post = 1.0 / torch.diagonal(a)
     return c - c.mean()
 
@@ -380,14 +398,14 @@ def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = N
         rhs = shifted.new_zeros(k_ch * w).index_add_(0, unknown.flatten(), r.flatten())
         diag = torch.diagonal(mat)
         if fresh and it == 0:
-            lam = [1e-2 * float(diag[:w].median())] * k_ch
+            lam = [_first_prior(diag[:w])] * k_ch
         else:
             lam = [1.0 / max(float((theta[0] ** 2).mean() + post[:w].mean()), 1e-8)]
             if k_ch > 1:
                 prior = float((theta[1:] ** 2).mean() + post[w:].mean())
                 lam += [1.0 / max(prior, 1e-8)] * (k_ch - 1)
         mat = mat + torch.diag(torch.tensor(lam, dtype=mat.dtype).repeat_interleave(w))
-        theta = torch.cholesky_solve(rhs[:, None], torch.linalg.cholesky(mat))[:, 0].view(k_ch, w)
+        theta = _spd_solve(mat, rhs).view(k_ch, w)
         post = 1.0 / torch.diagonal(mat)  # the posterior variances (diagonal approximation)
         theta = theta - theta.mean(1, keepdim=True)
     return theta, _loss(terms, theta)
@@ -436,7 +454,7 @@ def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) ->
             rhs += _d2t((wt * e0).sum(0), dim, n)
             counts.append((dim, n, cnt))
         if lam is None:
-            lam = 1e-2 * float(torch.stack([c.median() for _, _, c in counts]).mean())
+            lam = _first_prior(torch.cat([c.flatten() for _, _, c in counts]))
         else:
             lam = 1.0 / max(float((p * p).mean() + post.mean()), 1e-8)
         if lam <= 0:
@@ -677,13 +695,15 @@ def learn_folder_pattern(
     d = torch.where(valid, depth[:, 0].double() * unit, math.nan)[keep].cpu()
     amp = None if amplitude is None else amplitude[:, 0].double()[keep].cpu()
     frames = int(d.shape[0])
-    if h < 3 or w < 3:
-        return LearnedPattern(None, frames, 0, reason=f"frames of {h} x {w} are too small")
+    if min(h, w) < MIN_SIDE:
+        return LearnedPattern(
+            None, frames, 0, reason=f"frames of {h} x {w} are too small (< {MIN_SIDE} a side)"
+        )
     var = _noise_var(d, amp)
     groups = _scenes(d)
     scenes = len(groups)
     if scenes < min_scenes:
-        still = "a still scene: " if frames >= min_scenes else ""
+        still = "a still scene: " if scenes == 1 and frames > 1 else ""
         return LearnedPattern(
             None,
             frames,
