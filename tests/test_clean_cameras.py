@@ -260,6 +260,17 @@ def test_local_engine_workers_use_each_cameras_pipeline(two_cameras, tmp_path, k
     ).read_bytes()
 
 
+def _rounded(value):
+    """``value`` with every float rounded to 6 significant digits (nested dicts and lists)."""
+    if isinstance(value, float):
+        return float(f"{value:.6g}")
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_rounded(v) for v in value]
+    return value
+
+
 def test_a_resumed_run_rebuilds_the_same_cameras(two_cameras, tmp_path):
     out = tmp_path / "out"
     first = clean(str(two_cameras), str(out), figure=False)
@@ -270,7 +281,9 @@ def test_a_resumed_run_rebuilds_the_same_cameras(two_cameras, tmp_path):
     assert (again.done, again.already_done) == (1, 4)
     assert tree(out) == before
     starts = [r for r in read_manifest(str(out / "manifest.jsonl")) if r.get("event") == "start"]
-    assert len(starts) == 2 and starts[0]["cameras"] == starts[1]["cameras"]
+    # the same groups and stages (measured values to 6 digits: multi-threaded reductions of the
+    # measurement may differ in the last bits between runs; the bytes written did not)
+    assert len(starts) == 2 and _rounded(starts[0]["cameras"]) == _rounded(starts[1]["cameras"])
     last = [r for r in read_manifest(str(out / "manifest.jsonl")) if r.get("file")][-1]
     assert last["file"] == "b1_depth.png" and last["camera"] == "png 32x40"
 
