@@ -247,3 +247,23 @@ def test_a_newcomers_sinusoid_with_column_offsets_never_gets_worse(tmp_path, sti
         assert after <= 1.02 * before, (i, before, after)
         if not still:  # the oracle leaves 2.0 mm (noise and rounding)
             assert after < 2.4 < 0.7 * before, (i, before, after)
+
+
+def test_the_calibration_frames_are_spread_over_the_folder(tmp_path):
+    """A camera that stood still for its first eight files, then moved: frames spread over the
+    folder show several scenes (the first eight alone would be one still scene)."""
+    rng = np.random.default_rng(9)
+    offsets = _offsets(1)
+    (tmp_path / "in").mkdir()
+    still = _scene(rng)
+    for i in range(12):
+        z = still if i < 8 else _scene(rng)
+        noisy = z + offsets[None, :] + rng.normal(0, 2.0, z.shape)
+        Image.fromarray(np.round(noisy).astype(np.uint16)).save(
+            tmp_path / "in" / f"f{i:02d}_depth.png"
+        )
+        Image.fromarray(np.full((H, W), 150, np.uint16)).save(
+            tmp_path / "in" / f"f{i:02d}_amplitude.png"
+        )
+    report = clean(str(tmp_path / "in"), str(tmp_path / "out"), figure=False)
+    assert "fixed pattern learned from 8 frames of 4 scenes: columns" in report.stage, report.stage

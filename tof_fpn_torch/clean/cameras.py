@@ -76,9 +76,22 @@ def camera_groups(jobs: list[Job], config: CleanConfig) -> list[tuple[str, list[
 
 
 def _calibration(jobs, config: CleanConfig) -> Calibration:
-    """The first ``calibration_frames`` readable frames (of the first readable frame's shape,
-    frames with no valid pixel left out), and the camera the files name."""
-    return Calibration(*read_jobs(jobs, config, config.calibration_frames))
+    """``calibration_frames`` readable frames (of the first readable frame's shape, frames with
+    no valid pixel left out) from files spread evenly over ``jobs`` (the first, the last and
+    between: a camera's folder shows many scenes, its first files often one), then from the
+    others in order where those are not enough; and the camera the files name."""
+    n = config.calibration_frames
+    if len(jobs) > n > 1:
+        step = (len(jobs) - 1) / (n - 1)
+        chosen = sorted({round(i * step) for i in range(n)})
+        order = [jobs[i] for i in chosen] + [j for i, j in enumerate(jobs) if i not in chosen]
+    else:
+        order = list(jobs)
+    try:
+        return Calibration(*read_jobs(order, config, n))
+    except NoFramesError as exc:  # every file's reason, in file order
+        rank = {j.name: i for i, j in enumerate(jobs)}
+        raise NoFramesError(sorted(exc.failures, key=lambda f: rank.get(f[0], -1))) from None
 
 
 #: a camera group whose files hold no frame to measure on (others do): it gets no stage
@@ -120,8 +133,8 @@ class Camera:
 
 
 def build_cameras(jobs, config: CleanConfig) -> list[Camera]:
-    """One :class:`Camera` per camera group of ``jobs``, each pipeline measured on the first
-    readable frames of its own files. With several groups, a group none of whose files has a
+    """One :class:`Camera` per camera group of ``jobs``, each pipeline measured on readable
+    frames of its own files, spread over them (:func:`_calibration`). With several groups, a group none of whose files has a
     frame to measure on gets no stage (its frames pass as they are, :data:`UNMEASURED`).
     :class:`~.work.NoFramesError`, with every file's reason in file order (the jobs that failed
     planning too), when no group has one."""

@@ -4,7 +4,7 @@ one ordered list of stages.
 Each step (:mod:`tof_fpn_torch.clean.steps`: fixed pattern, FPN stage, flying pixels, denoiser,
 temporal filter) builds its stage from the configuration, or none; a stage measured on data
 (``destripe = "auto"``, ``notch = "data"``, ``fusion = "data"``) is measured on the calibration
-frames (the first frames of the input in file order, read by the caller) as the stages before it
+frames (frames spread over the camera's files, read by the caller) as the stages before it
 leave them, with the builders of :mod:`tof_fpn_torch.build`, and is then fixed for the whole run.
 Frame stages run on batches of frames (:meth:`CleanPipeline.forward`); sequence stages (temporal)
 run afterwards over the frames of each frame set in order (:meth:`CleanPipeline.run_sequence`).

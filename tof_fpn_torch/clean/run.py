@@ -2,7 +2,7 @@
 
 1. Refuse an OUTPUT that would overwrite INPUT or someone else's files (:func:`~.plan.check_paths`).
 2. Plan the jobs (:func:`~.plan.plan_jobs`), group them by camera (:func:`~.cameras.camera_groups`)
-   and build one pipeline per camera (measuring data-driven stages on the first frames of that
+   and build one pipeline per camera (measuring data-driven stages on frames spread over that
    camera's files), all before anything is written.
 3. Make OUTPUT, save the configuration as ``clean.toml`` (or, resuming, refuse a different one),
    read the manifest: files finished by an earlier run are skipped; temporary files a killed run

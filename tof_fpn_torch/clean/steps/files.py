@@ -11,8 +11,8 @@ __all__ = ["BATCH", "CALIBRATION_FRAMES", "FILE_OPTIONS", "ROUNDING"]
 #: Every frame is computed alone (:mod:`tof_fpn_torch.clean.work`), so it does not change the
 #: output bytes.
 BATCH: int = 8
-#: Frames (the first in file order) on which ``auto`` / ``data`` stages are measured when the run
-#: starts (``calibration_frames``).
+#: Frames (from files spread evenly over the camera's) on which ``auto`` / ``data`` stages are
+#: measured when the run starts (``calibration_frames``).
 CALIBRATION_FRAMES: int = 8
 #: integer outputs: how a corrected depth is rounded to the stored unit
 ROUNDING: tuple[str, ...] = ("dither", "nearest")
