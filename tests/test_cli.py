@@ -405,7 +405,8 @@ def test_readme_lists_every_command():
 
 
 def _sample_frames(folder: str, walls: bool) -> None:
-    """A few uint16-mm PNG pairs with a shared column pattern: flat slanted walls, or a scene."""
+    """A few uint16-mm PNG pairs with a shared column pattern: flat slanted walls, or scenes
+    (a step that moves, slopes that change: a camera moving through a room)."""
     from PIL import Image
 
     os.makedirs(folder)
@@ -415,7 +416,7 @@ def _sample_frames(folder: str, walls: bool) -> None:
     for i in range(4):
         d = 1500 + 100 * i + 2 * xx + yy + col[None, :] + rng.normal(0, 1, (48, 64))
         if not walls:
-            d = d + 300 * ((xx > 30) & (yy > 20))
+            d = d + 300 * ((xx > 20 + 8 * i) & (yy > 14 + 4 * i)) + 0.7 * i * xx
         Image.fromarray(np.rint(d).astype(np.uint16)).save(f"{folder}/f{i}_depth.png")
         Image.fromarray(np.full((48, 64), 200, np.uint16)).save(f"{folder}/f{i}_amplitude.png")
 
@@ -444,6 +445,7 @@ def test_readme_commands_work_as_written(cwd, capsys, monkeypatch):
         os.path.join(cli_demo.DEFAULT_OUT, "demo.png"),
         "wall.npz",
         os.path.join("out", "f0_depth.png"),
+        "cam.npz",
         os.path.join("recordings", "desk_recording.npz"),
     ]
     for path in expected:
