@@ -128,27 +128,37 @@ def test_the_noise_model_follows_one_over_amplitude():
     assert np.ptp(flat[0]) == 0 and flat[2, 0, 0] > 3 * flat[0, 0, 0]
 
 
-def test_profile_solves_the_least_squares_problem():
-    """The first (least-squares) iteration against NumPy's lstsq of the same objective."""
+@pytest.mark.parametrize("channels", [1, 3])
+def test_the_column_model_solves_the_least_squares_problem(channels):
+    """The first (least-squares) iteration of the column model, offsets alone (1 channel) or with
+    a read-out's two more channels (3), against NumPy's lstsq of the same objective written out
+    row by row."""
     rng = np.random.default_rng(11)
-    d = torch.from_numpy(rng.normal(0, 1, (3, 5, 9)))
-    var = torch.from_numpy(rng.uniform(0.5, 2, (3, 5, 9)))
-    got = fp._profile(d, var, -1, iterations=1).numpy()
+    n, h, w = 3, 5, 9
+    d = torch.from_numpy(rng.normal(0, 1, (n, h, w)))
+    var = torch.from_numpy(rng.uniform(0.5, 2, (n, h, w)))
+    basis = torch.from_numpy(rng.normal(0, 1, (channels, n, h, w)))
+    basis[0] = 1.0
+    got, _ = fp._columns(fp._column_terms(d, var, basis), iterations=1)
     e = np.asarray(fp._d2(d, -1))
     s2 = np.asarray(fp._d2_var(var, -1))
-    k2 = np.asarray(fp._d2(torch.eye(9, dtype=torch.float64), 0))
+    b = basis.numpy()
     rows, rhs = [], []
-    for i in range(3):
-        for y in range(5):
-            for x in range(7):
-                rows.append(k2[x] / np.sqrt(s2[i, y, x]))
+    for i in range(n):
+        for y in range(h):
+            for x in range(w - 2):
+                row = np.zeros(channels * w)
+                for k, kappa in enumerate((1.0, -2.0, 1.0)):
+                    for c in range(channels):
+                        row[c * w + x + k] += kappa * b[c, i, y, x + k]
+                rows.append(row / np.sqrt(s2[i, y, x]))
                 rhs.append(e[i, y, x] / np.sqrt(s2[i, y, x]))
-    cnt = (1 / s2).sum((0, 1))
-    lam = 1e-2 * float(np.median(cnt))
-    a = np.vstack([np.array(rows), np.sqrt(lam) * np.eye(9)])
-    b = np.concatenate([rhs, np.zeros(9)])
-    want = np.linalg.lstsq(a, b, rcond=None)[0]
-    np.testing.assert_allclose(got, want - want.mean(), atol=1e-10)
+    rows = np.array(rows)
+    lam = 1e-2 * float(np.median(np.diag(rows.T @ rows)[:w]))
+    a = np.vstack([rows, np.sqrt(lam) * np.eye(channels * w)])
+    want = np.linalg.lstsq(a, np.concatenate([rhs, np.zeros(channels * w)]), rcond=None)[0]
+    want = want.reshape(channels, w)
+    np.testing.assert_allclose(got.numpy(), want - want.mean(1, keepdims=True), atol=1e-10)
 
 
 @pytest.mark.parametrize(

@@ -254,46 +254,6 @@ def _noise_var(d: torch.Tensor, amp: torch.Tensor | None) -> torch.Tensor:
     return (k[:, None, None] / a) ** 2
 
 
-def _profile(
-    d: torch.Tensor, var: torch.Tensor, dim: int, iterations: int = ITERATIONS
-) -> torch.Tensor:
-    """Column (``dim=-1``) or row (``dim=-2``) offsets of (N, H, W) frames (module docstring)."""
-    n = d.shape[dim]
-    if n < 3:
-        return d.new_zeros(n)
-    e = _d2(d, dim)
-    s2 = _d2_var(var, dim)
-    ok = torch.isfinite(e) & torch.isfinite(s2)
-    e0 = torch.where(ok, e, 0.0)
-    w0 = torch.where(ok, 1.0 / torch.where(ok, s2, 1.0), 0.0)
-    sd = torch.where(ok, s2, 1.0).sqrt()
-    other = (0, 1) if dim == -1 else (0, 2)
-    shape = [1, 1, n - 2] if dim == -1 else [1, n - 2, 1]
-    # D2 as a dense (n-2, n) matrix: the normal equations are pentadiagonal, solved densely
-    eye = torch.eye(n, dtype=d.dtype, device=d.device)
-    k2 = _d2(eye, 0)  # (n-2, n)
-    c = d.new_zeros(n)
-    post = d.new_zeros(n)  # the posterior variances, from the first solve on
-    for it in range(iterations):
-        if it == 0:
-            w = w0
-        else:
-            u = (e0 - _d2(c, 0).view(shape)).abs() / (TUKEY_C * sd)
-            w = w0 * _tukey(u)
-        cnt = w.sum(other)
-        g = (w * e0).sum(other)
-        if not bool(cnt.gt(0).any()):
-            return d.new_zeros(n)
-        if it == 0:
-            lam = _first_prior(cnt)
-        else:  # the prior's variance: the estimate's power and its posterior variance
-            lam = 1.0 / max(float((c * c).mean() + post.mean()), 1e-8)
-        a = k2.T @ (cnt[:, None] * k2) + lam * eye
-        c = _spd_solve(a, k2.T @ g)
-        post = 1.0 / torch.diagonal(a)
-    return c - c.mean()
-
-
 #: modulation frequencies (Hz) tried for a read-out offset when the camera's is not known: the
 #: common continuous-wave ToF frequencies (PMD, Kinect v2, ESPROS, ADI, Melexis data sheets)
 FREQUENCIES_HZ: tuple[float, ...] = (
@@ -358,7 +318,7 @@ def _tukey_loss(u: torch.Tensor) -> torch.Tensor:
     return torch.where(u < 1, 1 - (1 - u * u) ** 3, torch.ones_like(u))
 
 
-def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = None):
+def _columns(terms, iterations: int = ITERATIONS):
     """Column profiles ``theta`` (K, W) of the channels (module docstring) and the robust loss
     of the fit: the normal equations of the weighted second differences, solved densely, with
     one white prior per kind of channel (offsets; the read-out offset's two channels)."""
@@ -366,11 +326,10 @@ def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = N
     _, k_ch, _, _, m = shifted.shape
     w = m + 2
     idx = torch.arange(m)
-    fresh = theta is None
-    theta = shifted.new_zeros(k_ch, w) if theta is None else theta
+    theta = shifted.new_zeros(k_ch, w)
     post = shifted.new_zeros(k_ch * w)  # the posterior variances, from the first solve on
     for it in range(iterations):
-        if fresh and it == 0:
+        if it == 0:
             wt = w0
         else:
             u = (e0 - _column_model(theta, shifted)).abs() / (TUKEY_C * sd)
@@ -397,7 +356,7 @@ def _columns(terms, iterations: int = ITERATIONS, theta: torch.Tensor | None = N
         )
         rhs = shifted.new_zeros(k_ch * w).index_add_(0, unknown.flatten(), r.flatten())
         diag = torch.diagonal(mat)
-        if fresh and it == 0:
+        if it == 0:
             lam = [_first_prior(diag[:w])] * k_ch
         else:
             lam = [1.0 / max(float((theta[0] ** 2).mean() + post[:w].mean()), 1e-8)]
@@ -505,7 +464,8 @@ def _learn(
     theta, _ = _columns(_column_terms(d[:, rows], var[:, rows], b[:, :, rows]))
     d = d - (theta[:, None, None, :] * b).sum(0)
     cols = slice(None, None, max(1, d.shape[2] // PROFILE_LINES))
-    row = _profile(d[:, :, cols], var[:, :, cols], -2)
+    dt, vt = d[:, :, cols].transpose(1, 2), var[:, :, cols].transpose(1, 2)  # rows as columns
+    row = _columns(_column_terms(dt, vt, torch.ones_like(dt)[None]))[0][0]
     d = d - row[None, :, None]
     return {"columns": theta, "rows": row, "pixels": _pixels(d, var)}
 
