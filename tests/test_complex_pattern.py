@@ -133,6 +133,34 @@ def test_correction_is_the_phase_of_z_minus_the_offset():
     assert out.dtype == torch.float64
 
 
+def test_depth_along_the_axis_is_corrected_on_the_radial_distance():
+    # a camera that writes Z: the phase is that of Z |ray|; reference in NumPy
+    g = torch.Generator().manual_seed(1)
+    re, im = torch.randn(W, generator=g).double(), torch.randn(W, generator=g).double()
+    d = 0.2 + 4.0 * torch.rand(2, 1, H, W, generator=g, dtype=torch.float64)
+    a = 5.0 + 20.0 * torch.rand(2, 1, H, W, generator=g, dtype=torch.float64)
+    fpx = 9.0
+    out = ComplexPatternCorrection(re, im, F0, focal_length_px=fpx, wrap=False)(d, a)
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    ray = np.sqrt(1 + ((xx - (W - 1) / 2) ** 2 + (yy - (H - 1) / 2) ** 2) / fpx**2)
+    r = d.numpy() * ray
+    z = a.numpy() * np.exp(1j * r / SCALE)
+    zc = z - (re.numpy() + 1j * im.numpy())
+    expect = (r + SCALE * np.angle(zc * np.conj(z))) / ray
+    expect = np.where(expect > 0, expect, d.numpy())  # a valid pixel never comes out invalid
+    np.testing.assert_allclose(out.numpy(), expect, rtol=0, atol=1e-9)
+    # the radial reading differs from it wherever the ray is long (the corners)
+    radial = ComplexPatternCorrection(re, im, F0, wrap=False)(d, a)
+    assert float((radial - out)[..., 0, 0].abs().max()) > 1e-3
+    # TorchScript agrees
+    m = torch.jit.script(ComplexPatternCorrection(re, im, F0, focal_length_px=fpx))
+    torch.testing.assert_close(
+        m(d, a), ComplexPatternCorrection(re, im, F0, focal_length_px=fpx)(d, a)
+    )
+    with pytest.raises(ValueError, match="focal_length_px must be a finite number > 0"):
+        ComplexPatternCorrection(re, im, F0, focal_length_px=0.0)
+
+
 def _inputs(seed=0, dtype=torch.float32):
     g = torch.Generator().manual_seed(seed)
     d = (0.3 + 7.0 * torch.rand(2, 1, H, W, generator=g)).to(dtype)

@@ -221,3 +221,55 @@ def test_small_frames_and_frames_mostly_holes_never_fail(h, w, holes, with_ampli
 def test_frames_under_eight_a_side_learn_nothing():
     learned = learn_folder_pattern(torch.rand(6, 1, 7, 50, dtype=torch.float64) + 1)
     assert learned.pattern is None and "too small (< 8 a side)" in learned.reason
+
+
+def readout_folder(n: int, fov_deg: float, seed: int):
+    """Frames of a camera that writes depth Z along its axis (pinhole, ``fov_deg`` horizontal)
+    with a complex column read-out offset ``c(x)`` added to ``A e^{j phi}``, ``phi`` the phase of
+    the radial distance ``Z |ray|`` at 20 MHz; noise ``~ 1 / A``."""
+    from tof_fpn_torch.runtime._phasor import metres_per_radian
+
+    rng = np.random.default_rng(seed)
+    scale = metres_per_radian(20e6)
+    f_px = (W / 2) / math.tan(math.radians(fov_deg) / 2)
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    ray = np.sqrt(1 + ((xx - (W - 1) / 2) ** 2 + (yy - (H - 1) / 2) ** 2) / f_px**2)
+    c = rng.normal(0, 0.5, W) + 1j * rng.normal(0, 0.5, W)
+    c -= c.mean()
+    truth, meas, amps = [], [], []
+    for _ in range(n):
+        z_true = scene(rng) + rng.uniform(0, 1.5)  # phases over much of the range, no wrap
+        a = rng.uniform(25, 80) * (1 + 0.5 * np.sin(xx / rng.uniform(8, 20) + rng.uniform(0, 6)))
+        zc = a * np.exp(1j * z_true * ray / scale) + c[None, :]
+        phase = np.mod(np.angle(zc), 2 * np.pi)
+        meas.append(phase * scale / ray + rng.normal(0, 0.03 / a))  # 0.6-2.4 mm noise
+        truth.append(z_true)
+        amps.append(np.abs(zc))
+    as_t = lambda v: torch.from_numpy(np.stack(v))[:, None]  # noqa: E731
+    return as_t(meas), as_t(truth), as_t(amps)
+
+
+def test_a_read_out_offset_of_a_camera_writing_z_is_learned_on_the_radial_distance(monkeypatch):
+    d, t, a = readout_folder(8, 70.0, seed=5)
+    learned = learn_folder_pattern(d, a)
+    assert learned.readout is not None, learned.summary()
+    assert learned.evidence["frequency_hz"] == 20e6
+    assert learned.evidence["field_of_view_deg"] == 70.0
+    assert "70 degree field" in learned.summary()
+    f_px = learned.readout.focal_length_px
+    assert f_px == pytest.approx((W / 2) / math.tan(math.radians(35.0)))
+
+    def gain(lp) -> float:
+        out = lp.module()(d, a)
+        e_in, e_out = (d - t).pow(2).mean(), (out - t).pow(2).mean()
+        return 10 * math.log10(float(e_in / e_out))
+
+    g = gain(learned)
+    # the same folder read as radial distances: the phases at the sides are wrong
+    monkeypatch.setattr(fp, "FIELDS_OF_VIEW_DEG", (None,))
+    radial = learn_folder_pattern(d, a)
+    assert g > 6.0 and g > gain(radial) + 0.3, (g, gain(radial))
+    # the focal length survives the pattern file's arrays
+    back = type(learned).from_arrays(*learned.to_arrays())
+    assert back.readout.focal_length_px == pytest.approx(f_px)
+    torch.testing.assert_close(back.module()(d, a), learned.module()(d, a))

@@ -98,6 +98,9 @@ class ComplexPattern:
         frames, width, amplitude_cap, texture_k: the calibration's inputs.
         noise_sigma: robust per-channel noise of ``z`` in one frame (amplitude units).
         shrink_factor: mean cross-validated factor of the column profile (1: all kept, 0: none).
+        focal_length_px: the frames' depth is ``Z`` along the optical axis of a pinhole with
+            this focal length (pixels); None: radial distance
+            (:class:`~tof_fpn_torch.runtime.ComplexPatternCorrection`).
     """
 
     column_offset_re: torch.Tensor
@@ -113,6 +116,7 @@ class ComplexPattern:
     noise_sigma: float = 0.0
     shrink_factor: float = 0.0
     height: int = -1
+    focal_length_px: float | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -129,6 +133,7 @@ class ComplexPattern:
             self.row_offset_re,
             self.row_offset_im,
             wrap=wrap,
+            focal_length_px=self.focal_length_px,
         )
 
     def to_arrays(self) -> tuple[dict[str, torch.Tensor], dict]:
@@ -148,6 +153,7 @@ class ComplexPattern:
             "noise_sigma": float(self.noise_sigma),
             "shrink_factor": float(self.shrink_factor),
             "has_rows": has_rows,
+            "focal_length_px": self.focal_length_px,
         }
         zeros = torch.zeros(h, dtype=torch.float64)
         arrays = {
@@ -178,6 +184,7 @@ class ComplexPattern:
             noise_sigma=meta["noise_sigma"],
             shrink_factor=meta["shrink_factor"],
             height=meta["height"],
+            focal_length_px=meta.get("focal_length_px"),
         )
 
 

@@ -50,7 +50,7 @@ import torch
 
 from .. import constants as K
 from ..runtime import PatternCorrection, valid_mask
-from ..runtime._phasor import metres_per_radian
+from ..runtime._phasor import metres_per_radian, ray_norm
 from .calibrate import FixedPattern
 from .calibrate_complex import ComplexPattern
 
@@ -117,7 +117,7 @@ class LearnedPattern:
             raise ValueError(f"nothing to apply: {self.reason}")
         parts = [self.pattern.module()]
         if self.readout is not None:
-            parts.append(self.readout.module())
+            parts.append(self.readout.module(wrap=False))  # the frequency may be a guess
         return PatternCorrection(parts, source="learned", learned=json.dumps(self.record()))
 
     def record(self) -> dict:
@@ -147,6 +147,7 @@ class LearnedPattern:
         }
         meta = {
             "modulation_frequency_hz": None if ro is None else ro.modulation_frequency_hz,
+            "focal_length_px": None if ro is None else ro.focal_length_px,
             "has_pixel": p.pixel_offset is not None,
             "learned": self.record(),
         }
@@ -173,6 +174,7 @@ class LearnedPattern:
                 modulation_frequency_hz=float(f),
                 frames=rec["frames"],
                 height=h,
+                focal_length_px=meta.get("focal_length_px"),
             )
         evidence = {k: v for k, v in rec.items() if k not in ("frames", "scenes", "parts")}
         return cls(pattern, rec["frames"], rec["scenes"], rec["parts"], None, readout, evidence)
@@ -188,7 +190,9 @@ class LearnedPattern:
         ]
         if self.readout is not None:
             f = self.readout.modulation_frequency_hz / 1e6
-            kept[0] += f", a read-out offset ~ 1/A (best fit at {f:g} MHz)"
+            fov = self.evidence.get("field_of_view_deg")
+            ray = "" if fov is None else f", depth along the axis of a {fov:g} degree field"
+            kept[0] += f", a read-out offset ~ 1/A (best fit at {f:g} MHz{ray})"
         return (
             f"fixed pattern learned from {self.frames} frames of {self.scenes} scenes: "
             + ", ".join(kept)
@@ -269,18 +273,43 @@ PROFILE_LINES = 128
 READOUT_MIN_Z = 3.0
 #: the amplitude floor of the ``1 / A`` basis, as a share of the median amplitude
 AMPLITUDE_FLOOR = 0.2
+#: iterations of the fits that choose the frequency and the field of view (the first least
+#: squares, then Tukey: edges must not choose)
+SELECT_ITERATIONS = 3
 
 
-def _basis(d: torch.Tensor, amp: torch.Tensor, f_hz: float) -> tuple[torch.Tensor, float]:
+#: horizontal fields of view (degrees) tried for a read-out offset: the phase is that of the
+#: radial distance ``Z |ray|`` of a camera that writes depth ``Z`` along its optical axis (None:
+#: the depth is the radial distance); CamCube 40, ESPROS 50, Kinect v2 70, Azure 75 / 120 degrees
+FIELDS_OF_VIEW_DEG: tuple[float | None, ...] = (None, 40.0, 55.0, 70.0, 90.0, 120.0)
+
+
+def _focal_px(width: int, fov_deg: float | None) -> float | None:
+    """The focal length (pixels) of a horizontal field of view over ``width`` pixels."""
+    return None if fov_deg is None else (width / 2) / math.tan(math.radians(fov_deg) / 2)
+
+
+def _ray(h: int, w: int, focal_px: float | None) -> torch.Tensor | None:
+    """(H, W) ray lengths per unit of depth (None: radial distance)."""
+    if focal_px is None:
+        return None
+    return ray_norm(h, w, focal_px, torch.float64, torch.device("cpu"))
+
+
+def _basis(
+    d: torch.Tensor, amp: torch.Tensor, f_hz: float, ray: torch.Tensor | None = None
+) -> tuple[torch.Tensor, float]:
     """(3, N, H, W) channels of a column's depth effect: ``1`` (an offset) and
     ``A_ref cos(phi) / A``, ``A_ref sin(phi) / A`` (a complex read-out offset ``c``: the depth
-    moves by ``scale Im(c e^{-j phi}) / A``, eq. (10)); ``phi`` from the depth in mm; ``A_ref``
-    the median amplitude (returned)."""
+    moves by ``scale Im(c e^{-j phi}) / A``, eq. (10)); ``phi`` from the depth in mm (times the
+    rays' lengths ``ray`` (H, W) when given); ``A_ref`` the median amplitude (returned)."""
     scale_mm = 1000.0 * metres_per_radian(f_hz)
     ok = torch.isfinite(d)
     a_ref = float(amp[ok].median()) if bool(ok.any()) else 1.0
     a = amp.clamp_min(AMPLITUDE_FLOOR * a_ref)
     phi = torch.nan_to_num(d) / scale_mm
+    if ray is not None:
+        phi = phi * ray
     return torch.stack(
         [torch.ones_like(d), a_ref * torch.cos(phi) / a, a_ref * torch.sin(phi) / a]
     ), a_ref
@@ -472,33 +501,55 @@ def _learn(
 
 def _readout_model(
     d: torch.Tensor, var: torch.Tensor, amp: torch.Tensor, frequencies: tuple[float, ...]
-) -> tuple[float | None, dict]:
+) -> tuple[float | None, float | None, dict]:
     """Whether the column pattern is a read-out offset (``~ 1 / A``) rather than a depth offset:
-    the frequency whose basis fits best (least squares on ~32 rows), then both models learned
-    on each half of the scenes and scored on the other half (on ~128 rows) (the robust loss of
-    :func:`_columns`); the read-out model is chosen only when it predicts the held-out half
-    better by :data:`READOUT_MARGIN`. ``(f or None, evidence)``."""
+    the frequency whose basis fits best (least squares on ~32 rows), then the field of view
+    (:data:`FIELDS_OF_VIEW_DEG`) and, where one is found, the frequency again; then both models
+    learned on each half of the scenes and scored on the other half (on ~128 rows) (the robust
+    loss of :func:`_columns`); the read-out model is chosen only when it predicts the held-out
+    half better by :data:`READOUT_MARGIN`. ``(f or None, focal length (px) or None,
+    evidence)``."""
     sub = slice(None, None, max(1, d.shape[1] // 32))  # ~32 rows: the frequency's choice
     ds, vs, amps = d[:, sub], var[:, sub], amp[:, sub]
-    fits = []
-    for f in frequencies:
-        b, _ = _basis(ds, amps, f)
-        fits.append((_columns(_column_terms(ds, vs, b), iterations=1)[1], f))
-    best_f = min(fits)[1]
-    b_full, _ = _basis(d, amp, best_f)
-    ones = torch.ones_like(d)[None]
+    h, w = d.shape[-2:]
+
     halves = (slice(0, None, 2), slice(1, None, 2))
+
+    def fit(f: float, fov: float | None) -> float:
+        ray = _ray(h, w, _focal_px(w, fov))
+        b, _ = _basis(ds, amps, f, None if ray is None else ray[sub])
+        return _columns(_column_terms(ds, vs, b), iterations=SELECT_ITERATIONS)[1]
+
+    def held_out(f: float, fov: float | None) -> float:
+        ray = _ray(h, w, _focal_px(w, fov))
+        b, _ = _basis(ds, amps, f, None if ray is None else ray[sub])
+        terms = [_column_terms(ds[h_], vs[h_], b[:, h_]) for h_ in halves]
+        theta = [_columns(t, iterations=SELECT_ITERATIONS)[0] for t in terms]
+        return _loss(terms[1], theta[0]) + _loss(terms[0], theta[1])
+
+    ranked = sorted((fit(f, None), f) for f in frequencies)
+    cands = [(held_out(f, fov), i, f, fov)
+             for _, f in ranked[:3] for i, fov in enumerate(FIELDS_OF_VIEW_DEG)]  # fmt: skip
+    _, _, best_f, best_fov = min(cands)
+    focal = _focal_px(w, best_fov)
+    b_full, _ = _basis(d, amp, best_f, _ray(h, w, focal))
+    ones = torch.ones_like(d)[None]
     held = {}
     for name, basis in (("offset", ones), ("readout", b_full)):
         rows = slice(None, None, max(1, d.shape[1] // 128))  # ~128 rows: the model's choice
-        terms = [_column_terms(d[h, rows], var[h, rows], basis[:, h, rows]) for h in halves]
+        terms = [_column_terms(d[h_, rows], var[h_, rows], basis[:, h_, rows]) for h_ in halves]
         theta = [_columns(t, iterations=5)[0] for t in terms]
         held[name] = _loss(terms[1], theta[0]) + _loss(terms[0], theta[1])
-    chosen = best_f if held["readout"] < (1 - READOUT_MARGIN) * held["offset"] else None
-    return chosen, {
-        "frequency_hz": best_f,
-        "held_out_loss": {k: round(v, 2) for k, v in held.items()},
-    }
+    chosen = held["readout"] < (1 - READOUT_MARGIN) * held["offset"]
+    return (
+        (best_f if chosen else None),
+        (focal if chosen else None),
+        {
+            "frequency_hz": best_f,
+            "field_of_view_deg": best_fov,
+            "held_out_loss": {k: round(v, 2) for k, v in held.items()},
+        },
+    )
 
 
 def _scenes(d: torch.Tensor) -> list[list[int]]:
@@ -674,12 +725,12 @@ def learn_folder_pattern(
     # offsets first; where their columns show a pattern at all and there are amplitudes, the
     # read-out model too, kept when the held-out half prefers it and the halves confirm it
     parts, kept = _confirmed(d, var, None, min_z)
-    f_hz, evidence, a_ref = None, {}, 1.0
+    f_hz, focal, evidence, a_ref = None, None, {}, 1.0
     if amp is not None and w >= 5 and parts["columns"]["z"] >= READOUT_MIN_Z:
         freqs = FREQUENCIES_HZ if modulation_frequency_hz is None else (modulation_frequency_hz,)
-        f_hz, evidence = _readout_model(d, var, amp, freqs)
+        f_hz, focal, evidence = _readout_model(d, var, amp, freqs)
         if f_hz is not None:
-            basis, a_ref = _basis(d, amp, f_hz)
+            basis, a_ref = _basis(d, amp, f_hz, _ray(h, w, focal))
             parts_ro, kept_ro = _confirmed(d, var, basis, min_z)
             if "columns" in kept_ro:
                 parts, kept = parts_ro, kept_ro
@@ -708,6 +759,7 @@ def learn_folder_pattern(
             modulation_frequency_hz=f_hz,
             frames=frames,
             height=h,
+            focal_length_px=focal,
         )
     pattern = FixedPattern(
         column_offset=(zero_c if columns is None else columns[0]) / unit,

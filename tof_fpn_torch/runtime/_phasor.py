@@ -15,7 +15,7 @@ import torch
 
 from .. import constants as K
 
-__all__ = ["depth_from_phase_change", "metres_per_radian", "phasor"]
+__all__ = ["depth_from_phase_change", "metres_per_radian", "phasor", "ray_norm"]
 
 
 def metres_per_radian(modulation_frequency_hz: float) -> float:
@@ -42,3 +42,14 @@ def depth_from_phase_change(
     if wrap:
         y = torch.remainder(y, 2.0 * math.pi * scale)
     return y
+
+
+def ray_norm(
+    height: int, width: int, focal_length_px: float, dtype: torch.dtype, device: torch.device
+) -> torch.Tensor:
+    """(H, W) length of each pixel's ray per unit of depth along the optical axis: a pinhole with
+    focal length ``focal_length_px`` (pixels) and the principal point at the frame centre,
+    ``sqrt(1 + ((x - (W - 1) / 2)^2 + (y - (H - 1) / 2)^2) / f^2)``."""
+    x = (torch.arange(width, dtype=dtype, device=device) - (width - 1) / 2.0) / focal_length_px
+    y = (torch.arange(height, dtype=dtype, device=device) - (height - 1) / 2.0) / focal_length_px
+    return torch.sqrt(1.0 + y[:, None] * y[:, None] + x[None, :] * x[None, :])

@@ -7,7 +7,11 @@ offline from many frames (:func:`tof_fpn_torch.analysis.calibrate_complex_patter
     ``z' = z - c(x) - r(y)``,   ``D' = D + c_L / (4 pi f) angle(z' conj z)``
 
 (re-wrapped into ``[0, c_L / 2f)`` when ``wrap``) with complex per-column offsets ``c`` and optional
-per-row offsets ``r`` in amplitude units, held as a float64 buffer. Invalid pixels
+per-row offsets ``r`` in amplitude units, held as a float64 buffer. The phase belongs to the radial
+distance along each pixel's ray; a camera that writes depth along the optical axis (``Z``) measured
+``Z |ray|`` (a pinhole with the principal point at the frame centre, focal length ``f_px``:
+``|ray| = sqrt(1 + ((x - x_c)^2 + (y - y_c)^2) / f_px^2)``), and the correction is computed on that
+distance and divided by ``|ray|`` again. Invalid pixels
 (:func:`~tof_fpn_torch.runtime.valid_mask`) come out bit-identical, and where the correction would
 make a valid depth invalid (``<= 0``) the input is kept. Nothing is estimated at run time.
 """
@@ -18,7 +22,7 @@ import math
 import torch
 
 from ._checks import check_image, check_same_shape
-from ._phasor import depth_from_phase_change, metres_per_radian, phasor
+from ._phasor import depth_from_phase_change, metres_per_radian, phasor, ray_norm
 from .stage import Stage, empty_record
 from .validity import valid_mask
 
@@ -47,6 +51,9 @@ class ComplexPatternCorrection(Stage):
         wrap: re-wrap the output into ``[0, c_L / 2f)`` (single-frequency depth); False keeps the
             input's branch.
         height: H when only column offsets are given (None: any height is accepted).
+        focal_length_px: the depth is ``Z`` along the optical axis of a pinhole camera with this
+            focal length (pixels, finite > 0; principal point at the frame centre); None: the
+            depth is the radial distance.
 
     Shape:
         - depth, amplitude: (B, C, H, W) float with the calibrated W (and H when rows are
@@ -68,6 +75,7 @@ class ComplexPatternCorrection(Stage):
     modulation_frequency_hz: float
     scale: float
     wrap: bool
+    focal_length_px: float
 
     def __init__(
         self,
@@ -78,6 +86,7 @@ class ComplexPatternCorrection(Stage):
         row_offset_im=None,
         wrap: bool = True,
         height: int | None = None,
+        focal_length_px: float | None = None,
     ) -> None:
         super().__init__()
         f = modulation_frequency_hz
@@ -88,6 +97,13 @@ class ComplexPatternCorrection(Stage):
         im = _vector(column_offset_im, "column_offset_im", w)
         if (row_offset_re is None) != (row_offset_im is None):
             raise ValueError("row_offset_re and row_offset_im must be given together")
+        fl = focal_length_px
+        if fl is not None and (
+            isinstance(fl, bool) or not isinstance(fl, (int, float)) or not 0 < fl < math.inf
+        ):
+            raise ValueError(
+                f"focal_length_px must be a finite number > 0 (pixels) or None, got {fl!r}"
+            )
         h = -1 if height is None else int(height)
         if height is not None and h < 1:
             raise ValueError(f"height must be an int >= 1, got {height!r}")
@@ -102,13 +118,15 @@ class ComplexPatternCorrection(Stage):
         self.modulation_frequency_hz = float(f)
         self.scale = metres_per_radian(float(f))
         self.wrap = bool(wrap)
+        self.focal_length_px = -1.0 if fl is None else float(fl)  # -1: radial distance
         self.register_buffer("offset", offset)  # (1, 2, 1 or H, W) float64
 
     def extra_repr(self) -> str:
         h = "any" if self.height < 0 else str(self.height)
         return (
             f"height={h}, width={self.width}, offset_rows={self.offset.shape[2]}, "
-            f"modulation_frequency_hz={self.modulation_frequency_hz:g}, wrap={self.wrap}"
+            f"modulation_frequency_hz={self.modulation_frequency_hz:g}, wrap={self.wrap}, "
+            f"focal_length_px={self.focal_length_px if self.focal_length_px > 0 else None}"
         )
 
     def _run(
@@ -134,9 +152,13 @@ class ComplexPatternCorrection(Stage):
         amp = amplitude.to(work).reshape(b * c, 1, h, w)
         valid = valid_mask(x, amp)
         zero = torch.zeros_like(x)
-        z = phasor(torch.where(valid, x, zero), torch.where(valid, amp, zero), self.scale)
+        ray = torch.ones(1, dtype=work, device=x.device)
+        if self.focal_length_px > 0:
+            ray = ray_norm(h, w, self.focal_length_px, work, x.device)
+        r = x * ray  # the radial distance
+        z = phasor(torch.where(valid, r, zero), torch.where(valid, amp, zero), self.scale)
         zc = z - self.offset.to(work)
-        y = depth_from_phase_change(x, z, zc, self.scale, self.wrap)
+        y = depth_from_phase_change(r, z, zc, self.scale, self.wrap) / ray
         # invalid pixels come out bit-identical; a valid pixel never comes out invalid
         y = torch.where(valid & valid_mask(y), y, x)
         out = torch.where(valid.reshape(b, c, h, w), y.reshape(b, c, h, w).to(depth.dtype), depth)
