@@ -9,6 +9,7 @@ broadband destriper (:class:`~tof_fpn_torch.runtime.FPNSuppression`), each optio
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import torch
@@ -158,9 +159,26 @@ def _design_stage(ctx: Context, rho: float, destripe: nn.Module | None) -> FPNSu
     )
 
 
+#: the single-frame measurements (stripes, fusion, broadband offsets) look at most this many
+#: pixels of the calibration frames (whole frames, spread over them; at least one): a camera's
+#: stripes show in every frame, and the measurement is the run's fixed cost
+MEASURE_PIXELS: int = 1 << 19
+
+
+def _measure_frames(ctx: Context):
+    """The calibration frames the single-frame measurements use (:data:`MEASURE_PIXELS`)."""
+    frames = ctx.frames()
+    n, _, h, w = frames.depth.shape
+    k = max(1, min(n, MEASURE_PIXELS // max(h * w, 1)))
+    if k == n:
+        return frames
+    pick = torch.linspace(0, n - 1, k).round().long()
+    return dataclasses.replace(frames, depth=frames.depth[pick], amplitude=frames.amplitude[pick])
+
+
 def _data_stage(ctx: Context, destripe: nn.Module | None) -> FPNSuppression:
     c = ctx.config
-    frames = ctx.frames()
+    frames = _measure_frames(ctx)
     keep = c.destripe != "auto"  # else suppression_from_data measures the destriper itself
     d, a = frames.depth, frames.amplitude
     if c.fusion == "off":
@@ -203,7 +221,7 @@ def _build(ctx: Context) -> FPNSuppression | None:
     if fpn is None and destripe is not None:
         fpn = FPNSuppression(None, None, destripe=destripe)
     if c.destripe == "auto" and not measured_notch:
-        frames = ctx.frames()
+        frames = _measure_frames(ctx)
         with torch.no_grad():
             notched = frames.depth if fpn is None else fpn(frames.depth, frames.amplitude)
         found = broadband_from_data(notched, frames.amplitude)
