@@ -129,6 +129,41 @@ def _select(
     return _positions(d, j, rnorm, Hc, Wc, step, radius)
 
 
+def _window_sums(src: torch.Tensor, n: int, step: int, m: int, out: torch.Tensor) -> torch.Tensor:
+    """``out[:, :, j] = sum_{u < n} src[:, :, step j + u]`` for ``j < m`` (3-D tensors): sums of
+    shifted copies by doubling, the last level only at the ``m`` output positions."""
+    parts: list[torch.Tensor] = []
+    starts: list[int] = []
+    block = src
+    span = 1
+    rem = n
+    pos = 0
+    while rem > 0:
+        if rem % 2 == 1:
+            parts.append(block)
+            starts.append(pos)
+            pos += span
+        rem = rem // 2
+        if rem == 1:  # the last block as its two halves
+            parts.append(block)
+            starts.append(pos)
+            parts.append(block)
+            starts.append(pos + span)
+            rem = 0
+        elif rem > 1:
+            L = block.shape[2] - span
+            block = torch.add(block.narrow(2, 0, L), block.narrow(2, span, L))
+            span *= 2
+    e = step * (m - 1) + 1
+    if len(parts) == 1:
+        return out.copy_(parts[0].narrow(2, starts[0], e)[:, :, ::step])
+    a = parts[0].narrow(2, starts[0], e)[:, :, ::step]
+    torch.add(a, parts[1].narrow(2, starts[1], e)[:, :, ::step], out=out)
+    for i in range(2, len(parts)):
+        out.add_(parts[i].narrow(2, starts[i], e)[:, :, ::step])
+    return out
+
+
 def _scores_window(
     x: torch.Tensor, n: int, step: int, radius: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -162,8 +197,7 @@ def _scores_window(
         b = xp.as_strided((win, H, W), (Wp, Wp, 1), wx)  # rows wy + y, columns wx + x
         torch.mul(a, b, out=prod)
         torch.sum(prod.as_strided((win, ny, n, W), (H * W, step * W, W, 1)), 2, out=cols)
-        sw = scores[wx]
-        torch.sum(cols.as_strided((win, ny, nx, n), (ny * W, W, step, 1)), 3, out=sw)
+        sw = _window_sums(cols, n, step, nx, scores[wx])
         cn = norm.as_strided((win, ny, nx), (Wn, step * Wn, step), wx)  # |c|^2
         torch.add(cn, sw, alpha=-2.0, out=sw)
     return scores.reshape(win * win, ny * nx), bnorm[::step, ::step].reshape(-1)
