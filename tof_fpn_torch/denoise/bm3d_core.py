@@ -150,10 +150,10 @@ def _filter_groups(
     """Collaborative filtering of every group, accumulated into ``acc`` (P, n^2) / ``wacc`` (P,).
 
     ``coef`` and ``pilot`` are already divided by ``sqrt(rvar)`` (unit relative variance per
-    coefficient); each group is divided by its noise standard deviation, so thresholds and
-    Wiener gains are in units of the noise. ``pilot`` None: hard thresholding at ``lam``, weight
+    coefficient); thresholds and Wiener gains are in units of each group's noise standard
+    deviation. ``pilot`` None: hard thresholding at ``lam``, weight
     ``1 / (var * sum of the kept coefficients' rvar)``; else the empirical Wiener gain
-    ``W = P^2 / (P^2 + mu2)``, weight ``1 / (var * sum W^2 rvar)``. The Haar transform along
+    ``W = P^2 / (P^2 + mu2 var)``, weight ``1 / (var * sum W^2 rvar)``. The Haar transform along
     the group is a matrix product (:func:`_haar_matrix`); groups are processed ``chunk``
     coefficients at a time (in cache)."""
     k = coef.shape[1]
@@ -171,19 +171,20 @@ def _filter_groups(
             gvar = var.index_select(0, flat).reshape(m, g).mean(0).clamp_min(1e-30)
             gstd = gvar.sqrt().reshape(1, g, 1)
             z = torch.mm(hm, coef.index_select(0, flat).reshape(m, g * k)).reshape(m, g, k)
-            z.div_(gstd)
             if pilot is None:
-                z = F.hardshrink(z, lam)
+                z = F.hardshrink(z.div_(gstd), lam)
                 kept = (z != 0).sum(0).to(z.dtype)  # (g, k)
                 wsum = kept @ rvar
-            else:
+                scale = gstd.reshape(g)
+            else:  # P^2 / (P^2 + mu2 var), the group's noise variance not divided out
                 p = torch.mm(hm, pilot.index_select(0, flat).reshape(m, g * k)).reshape(m, g, k)
-                p.div_(gstd).square_()
-                gain = p.div_(p + mu2)
+                p.square_()
+                gain = p.div_(p + (mu2 * gvar).reshape(1, g, 1))
                 z.mul_(gain)
                 wsum = gain.square_().sum(0) @ rvar
+                scale = torch.ones_like(gvar)
             w = 1.0 / (gvar * wsum.clamp_min(floor))
-            z.mul_((w * gstd.reshape(g)).reshape(1, g, 1))
+            z.mul_((w * scale).reshape(1, g, 1))
             out = torch.mm(hmt, z.reshape(m, g * k))
             acc.index_add_(0, flat, out.reshape(m * g, k))
             wacc.index_add_(0, flat, w.repeat(m))
