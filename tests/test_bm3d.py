@@ -19,7 +19,8 @@ from skimage.metrics import peak_signal_noise_ratio
 from tof_fpn_torch import constants as K
 from tof_fpn_torch.denoise import BM3D, bm3d
 from tof_fpn_torch.denoise.bm3d import psd_block_covariance
-from tof_fpn_torch.denoise.bm3d_core import _haar, bior15_matrix, dct_matrix
+from tof_fpn_torch.denoise.bm3d_core import _haar, _haar_matrix, bior15_matrix, dct_matrix
+from tof_fpn_torch.denoise.bm3d_match import match
 from tof_fpn_torch.sim import planar_scene, synthetic_scene
 
 if not hasattr(np, "trapz"):  # the bm3d package's PSD path calls np.trapz (removed in NumPy 2)
@@ -73,6 +74,45 @@ def test_dct_and_haar_are_orthonormal():
         torch.testing.assert_close(y.square().sum(1), x.square().sum(1))  # energy kept
         torch.testing.assert_close(_haar(y, True), x)
         torch.testing.assert_close(y[:, 0], x.sum(1) / math.sqrt(m))  # first row: the mean
+
+
+def test_haar_matrix_is_the_haar_transform():
+    g = torch.Generator().manual_seed(1)
+    for m in (1, 2, 16, 32):
+        x = torch.randn(3, m, 5, generator=g, dtype=torch.float64)
+        h = _haar_matrix(m, torch.float64, torch.device("cpu"))
+        torch.testing.assert_close(torch.matmul(h, x), _haar(x, False))
+        torch.testing.assert_close(h @ h.t(), torch.eye(m, dtype=torch.float64))
+
+
+@pytest.mark.parametrize(
+    ("shape", "n", "step", "radius", "n2"),
+    [((23, 29), 4, 2, 5, 8), ((20, 17), 8, 3, 12, 16), ((14, 30), 3, 1, 2, 32)],
+)
+def test_pixel_matching_is_exact(shape, n, step, radius, n2):
+    """The n2 nearest blocks of every reference in its window (clipped to the image), nearest
+    first, the reference itself first: against a brute-force search."""
+    g = torch.Generator().manual_seed(2)
+    x = torch.rand(shape, generator=g, dtype=torch.float64)
+    dist, idx = match(x, x[:0], n * n, n, step, radius, 4, n2)
+    H, W = shape
+    Hc, Wc = H - n + 1, W - n + 1
+    blocks = x.unfold(0, n, 1).unfold(1, n, 1).reshape(Hc, Wc, n * n)
+    refs = [(y, x_) for y in range(0, Hc, step) for x_ in range(0, Wc, step)]
+    assert dist.shape[0] == len(refs)
+    for i, (ry, rx) in enumerate(refs):
+        cands = [
+            (float((blocks[ry, rx] - blocks[cy, cx]).square().sum()), cy * Wc + cx)
+            for cy in range(max(0, ry - radius), min(Hc, ry + radius + 1))
+            for cx in range(max(0, rx - radius), min(Wc, rx + radius + 1))
+        ]
+        cands.sort()
+        k = min(n2, len(cands))
+        got = dist[i, :k]
+        torch.testing.assert_close(got, torch.tensor([c[0] for c in cands[:k]]).to(got))
+        assert idx[i, 0] == ry * Wc + rx and dist[i, 0] == 0.0
+        assert idx[i, :k].tolist() == [c[1] for c in cands[:k]]
+        assert bool(torch.isinf(dist[i, k:]).all())
 
 
 @pytest.mark.parametrize(

@@ -17,12 +17,13 @@ Two stages, as the paper:
    applied to the noisy group, weight ``1 / (sigma^2 |W|^2)``.
 
 Implementation: :mod:`tof_fpn_torch.denoise.bm3d_core` (one ``conv2d`` computes the transform of
-every block once; matching is a grouped convolution or a batched matrix product per tile of
-references, :mod:`~tof_fpn_torch.denoise.bm3d_match`; aggregation happens in the transform
-domain). Defaults follow the ``bm3d`` package (Makinen, Azzari, Foi 2020) for white noise:
-biorthogonal 1.5 in the first stage, ``lam = 3.0``; the thresholds ``tau`` are relative to the
-noise variance (the package's are absolute, for images in [0, 1]: 3000 / 255^2 and 400 / 255^2 per
-pixel, our ``4.8`` and ``0.64`` at sigma = 25 / 255). Differences: ``mu2 = 1`` (the paper's; the
+every block once; matching computes the dot products per offset over the whole image, or a
+batched matrix product per tile of references on DCT features,
+:mod:`~tof_fpn_torch.denoise.bm3d_match`; aggregation happens in the transform domain).
+Defaults follow the ``bm3d`` package (Makinen, Azzari, Foi 2020) for white noise: biorthogonal
+1.5 in the first stage, ``lam = 3.0``; the thresholds ``tau`` are relative to the noise variance
+(the package's are absolute, for images in [0, 1]: 3000 / 255^2 and 400 / 255^2 per pixel, our
+``4.8`` and ``0.64`` at sigma = 25 / 255). Differences: ``mu2 = 1`` (the paper's; the
 package 0.4) and a 25 x 25 search window (the package: 39 x 39; ``search_radius=19`` gives it).
 Measured against the package: docs/denoise.md.
 
@@ -294,7 +295,7 @@ def _bm3d(
                 transform_ht,
                 4,
                 wiener,
-                2097152,  # coefficients per chunk of groups (fewer, larger ops)
+                524288,  # coefficients per chunk of groups (in cache)
             )
             out[b, c] = res[:H, :W]
     return restore_invalid(out, depth, valid)

@@ -7,13 +7,13 @@ of ``step``, which the caller arranges by reflect-padding):
   the second) of *every* ``n x n`` block, two convolutions; groups are gathered from it, so the
   2-D transform is computed once per image and stage.
 * Block matching, on a regular grid of reference blocks (``step``) against every position within
-  ``radius``, per tile of ``tile x tile`` references sharing one candidate region
-  (``|a - b|^2 = |a|^2 + |b|^2 - 2 a.b``): exact on the pixels (the dot products are one grouped
-  ``conv2d`` of the tiles' regions with their reference blocks), or on the ``q x q`` lowest DCT
-  frequencies of each block (one batched matrix product; ``features = q^2``).
+  ``radius`` (``|a - b|^2 = |a|^2 + |b|^2 - 2 a.b``): exact on the pixels (the dot products per
+  offset over the whole image, :mod:`~tof_fpn_torch.denoise.bm3d_match`), or on the ``q x q``
+  lowest DCT frequencies of each block (one batched matrix product per tile of references;
+  ``features = q^2``).
 * A group keeps the matched blocks whose mean squared distance per pixel is at most ``tau`` times
   the noise variance of the reference block, at most ``n2``, rounded down to a power of two (Haar
-  along the group); the groups of one size are filtered together.
+  along the group, as one matrix product); the groups of one size are filtered together.
 * Aggregation in the transform domain: the weighted, filtered coefficients of every block are
   added at its position, then two ``conv_transpose2d`` with the Kaiser-windowed synthesis
   vectors do the inverse transform, the window and the overlap-add of all positions at once
@@ -128,6 +128,11 @@ def _haar(x: torch.Tensor, inverse: bool) -> torch.Tensor:
     return cur
 
 
+def _haar_matrix(m: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(m, m) orthonormal Haar matrix of :func:`_haar` (``_haar(x) = H @ x`` along dim 1)."""
+    return _haar(torch.eye(m, dtype=dtype, device=device).reshape(1, m, m), False)[0].contiguous()
+
+
 def _filter_groups(
     coef: torch.Tensor,
     pilot: torch.Tensor | None,
@@ -145,37 +150,44 @@ def _filter_groups(
     """Collaborative filtering of every group, accumulated into ``acc`` (P, n^2) / ``wacc`` (P,).
 
     ``coef`` and ``pilot`` are already divided by ``sqrt(rvar)`` (unit relative variance per
-    coefficient); each group is divided by its noise standard deviation, so thresholds and
-    Wiener gains are in units of the noise. ``pilot`` None: hard thresholding at ``lam``, weight
+    coefficient); thresholds and Wiener gains are in units of each group's noise standard
+    deviation. ``pilot`` None: hard thresholding at ``lam``, weight
     ``1 / (var * sum of the kept coefficients' rvar)``; else the empirical Wiener gain
-    ``W = P^2 / (P^2 + mu2)``, weight ``1 / (var * sum W^2 rvar)``. Groups are processed
-    ``chunk`` coefficients at a time (in cache)."""
+    ``W = P^2 / (P^2 + mu2 var)``, weight ``1 / (var * sum W^2 rvar)``. The Haar transform along
+    the group is a matrix product (:func:`_haar_matrix`); groups are processed ``chunk``
+    coefficients at a time (in cache)."""
     k = coef.shape[1]
     floor = float(rvar.min()) if pilot is None else 1e-6 * float(rvar.sum())
     m = 1
     while m <= n2:
         sel = torch.nonzero(sizes == m).flatten()
+        hm = _haar_matrix(m, coef.dtype, coef.device)
+        hmt = hm.t().contiguous()
         step = max(1, chunk // (m * k))
         for g0 in range(0, sel.numel(), step):
-            flat = idx[sel[g0 : g0 + step], :m].reshape(-1)
+            # block-major order (m, g): the Haar transform of every group is one (m, m) @ (m, g k)
+            flat = idx[sel[g0 : g0 + step], :m].t().reshape(-1)
             g = flat.numel() // m
-            gvar = var.index_select(0, flat).reshape(g, m).mean(1).clamp_min(1e-30)
-            gstd = gvar.sqrt().reshape(g, 1, 1)
-            z = _haar(coef.index_select(0, flat).reshape(g, m, k).div_(gstd), False)
+            gvar = var.index_select(0, flat).reshape(m, g).mean(0).clamp_min(1e-30)
+            gstd = gvar.sqrt().reshape(1, g, 1)
+            z = torch.mm(hm, coef.index_select(0, flat).reshape(m, g * k)).reshape(m, g, k)
             if pilot is None:
-                z = F.hardshrink(z, lam)
-                kept = (z != 0).sum(1).to(z.dtype)  # (g, k)
+                z = F.hardshrink(z.div_(gstd), lam)
+                kept = (z != 0).sum(0).to(z.dtype)  # (g, k)
                 wsum = kept @ rvar
-            else:
-                p = _haar(pilot.index_select(0, flat).reshape(g, m, k).div_(gstd), False)
+                scale = gstd.reshape(g)
+            else:  # P^2 / (P^2 + mu2 var), the group's noise variance not divided out
+                p = torch.mm(hm, pilot.index_select(0, flat).reshape(m, g * k)).reshape(m, g, k)
                 p.square_()
-                gain = p.div_(p + mu2)
+                gain = p.div_(p + (mu2 * gvar).reshape(1, g, 1))
                 z.mul_(gain)
-                wsum = gain.square_().sum(1) @ rvar
+                wsum = gain.square_().sum(0) @ rvar
+                scale = torch.ones_like(gvar)
             w = 1.0 / (gvar * wsum.clamp_min(floor))
-            out = _haar(z, True).mul_((w * gstd.reshape(g)).reshape(g, 1, 1))
-            acc.index_add_(0, flat, out.reshape(g * m, k))
-            wacc.index_add_(0, flat, w.repeat_interleave(m))
+            z.mul_((w * scale).reshape(1, g, 1))
+            out = torch.mm(hmt, z.reshape(m, g * k))
+            acc.index_add_(0, flat, out.reshape(m * g, k))
+            wacc.index_add_(0, flat, w.repeat(m))
         m *= 2
 
 
