@@ -148,3 +148,12 @@ def test_summary_counts_worse_frames_lies_and_byte_equality():
     text = bf.table(agg)
     assert "FAILED boxes/stripes/s0: x" in text
     assert "25.0 % of oracle" in text
+
+
+def test_held_out_seeds_need_the_flag_and_the_flag_only_held_out_seeds():
+    with pytest.raises(SystemExit):
+        bf.main(["--seeds", "1000", "--families", "boxes", "--patterns", "none"])
+    with pytest.raises(SystemExit):
+        bf.main(["--held-out", "--seeds", "0", "--families", "boxes", "--patterns", "none"])
+    with pytest.raises(ValueError, match="held out"):
+        bf.run_folder({"family": "boxes", "pattern": "none", "seed": 1000})
