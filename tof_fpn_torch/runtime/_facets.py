@@ -15,9 +15,11 @@ which every comparison downstream reads as False. The facet's value at an offset
 ``m + g_y dy + g_x dx``; its variance for i.i.d. noise of variance ``s^2`` is
 ``s^2 (1 / N + dy^2 / Y + dx^2 / X)``.
 
-Also here, for the flying-pixel stage (:mod:`.flying`): :func:`local_noise` (the noise map raised
-to the local level of the 3 x 3 facet residuals) and :func:`nearest_kept` (the depth a reassigned
-pixel takes).
+Also here, for the flying-pixel stage (:mod:`.flying`): :func:`window_fit` (the same fits from
+float64 window sums of shifted adds, on a padded domain: several times faster than the
+convolution and the per-pixel residual loop), :func:`local_noise` (the noise map raised to the
+local level of the 3 x 3 facet residuals) and :func:`nearest_kept` (the depth a reassigned pixel
+takes).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-__all__ = ["facet_sums", "local_noise", "nearest_kept", "plane_fit", "shifted"]
+__all__ = ["facet_sums", "local_noise", "nearest_kept", "plane_fit", "shifted", "window_fit"]
 
 
 def facet_sums(
@@ -80,19 +82,64 @@ def shifted(padded: torch.Tensor, dy: int, dx: int, pad: int) -> torch.Tensor:
     return padded[:, :, pad + dy : pad + dy + h, pad + dx : pad + dx + w]
 
 
-def local_noise(x: torch.Tensor, law: torch.Tensor, size: int, clip: float) -> torch.Tensor:
+def window_fit(
+    padded: torch.Tensor, pad: int, size: int, out: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(m, g_x, g_y, v)`` of :func:`plane_fit` for ``size`` x ``size`` windows (``size`` odd)
+    centred on the pixels of the map padded by ``out`` (each (B, 1, H + 2 out, W + 2 out)), from
+    ``padded``, the map padded by ``pad >= out + size // 2`` with NaN. The window sums are shifted
+    adds in float64 (a row pass, then a column pass; ``S_x``, ``S_y`` from differences of
+    mirrored pixels) and ``v = (Q - S m - S_x g_x - S_y g_y) / (N - 3)``: float64 keeps ``Q - S m``
+    exact to about 1e-9 of the noise variance. Returned in the dtype of ``padded``."""
+    h = size // 2
+    rows = padded.shape[-2] - 2 * pad + 2 * out
+    cols = padded.shape[-1] - 2 * pad + 2 * out
+    c0 = pad - out  # the first output row and column in ``padded``
+    z = padded[:, :, c0 - h : c0 + rows + h, :].to(torch.float64)
+    zq = torch.cat([z, z * z], 1)  # channel 0: z, channel 1: z^2
+    # row pass: window sums along x of z and z^2, and sum_x x z
+    hs = zq[:, :, :, c0 : c0 + cols].clone()
+    hx = torch.zeros_like(hs[:, 0:1])
+    for k in range(1, h + 1):
+        hs.add_(zq[:, :, :, c0 - k : c0 - k + cols]).add_(zq[:, :, :, c0 + k : c0 + k + cols])
+        hx.add_(z[:, :, :, c0 + k : c0 + k + cols] - z[:, :, :, c0 - k : c0 - k + cols], alpha=k)
+    # column pass
+    sq = hs[:, :, h : h + rows].clone()
+    sx = hx[:, :, h : h + rows].clone()
+    sy = torch.zeros_like(sx)
+    for k in range(1, h + 1):
+        sq.add_(hs[:, :, h - k : h - k + rows]).add_(hs[:, :, h + k : h + k + rows])
+        sx.add_(hx[:, :, h - k : h - k + rows]).add_(hx[:, :, h + k : h + k + rows])
+        sy.add_(hs[:, 0:1, h + k : h + k + rows] - hs[:, 0:1, h - k : h - k + rows], alpha=k)
+    s, q = sq[:, 0:1], sq[:, 1:2]
+    count = float(size * size)
+    moment = float(size * sum([k * k for k in range(-h, h + 1)]))
+    m = s / count
+    gx = sx / moment
+    gy = sy / moment
+    q.sub_(s * m).sub_(sx * gx).sub_(sy * gy).clamp_min_(0.0).div_(count - 3.0)
+    dt = padded.dtype
+    return m.to(dt), gx.to(dt), gy.to(dt), q.to(dt)
+
+
+def local_noise(v: torch.Tensor, law: torch.Tensor, size: int, clip: float) -> torch.Tensor:
     """The noise map raised to the local level where the data are noisier than the law: the root
-    of the mean over a ``size`` x ``size`` window of the 3 x 3 facet residual variances, each
-    clipped at ``clip`` times the law's variance (a window across an edge counts as that)."""
-    v = plane_fit(x, 3, 3)[3]
+    of the mean over a ``size`` x ``size`` window of the 3 x 3 facet residual variances ``v``
+    (NaN where a window is not valid), each clipped at ``clip`` times the law's variance (a window
+    across an edge counts as that)."""
     cap = clip * law * law
-    ok = torch.isfinite(v)
-    vc = torch.where(ok, torch.minimum(v, cap), torch.zeros_like(v))
+    vc = torch.minimum(v, cap)
+    ok = (vc * 0.0).add_(1.0).nan_to_num_(nan=0.0)  # 1 where v is a number, else 0
     pad = size // 2
-    both = F.pad(torch.cat([vc, ok.to(v.dtype)], 1), (pad, pad, pad, pad))
-    means = F.avg_pool2d(F.avg_pool2d(both, (1, size), 1), (size, 1), 1)  # separable: 2 x 7, not 49
-    total, count = means[:, 0:1], means[:, 1:2]
-    local = torch.sqrt(total / count.clamp_min(1.0 / float(size * size)))
+    both = F.pad(torch.cat([vc.nan_to_num_(nan=0.0), ok], 1), (pad, pad, pad, pad))
+    rows, cols = v.shape[-2], v.shape[-1]
+    sums = both[:, :, :, 0:cols].clone()  # separable window sums: 2 x (size - 1) adds
+    for k in range(1, size):
+        sums.add_(both[:, :, :, k : k + cols])
+    box = sums[:, :, 0:rows].clone()
+    for k in range(1, size):
+        box.add_(sums[:, :, k : k + rows])
+    local = torch.sqrt(box[:, 0:1] / box[:, 1:2].clamp_min(1.0))
     return torch.maximum(law, local)
 
 

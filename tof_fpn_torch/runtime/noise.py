@@ -330,6 +330,7 @@ def facet_noise(
     min_noise: float = 1e-3,
     clip: float = _FACET_NOISE_CLIP,
     bias: float = _LOG_CHI2_6_BIAS,
+    residuals: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Per-pixel depth noise (standard deviation) from the law ``sigma^2 = e^c A^-gamma`` fitted
     per frame to local 3 x 3 plane-fit residuals (module docstring).
@@ -339,6 +340,8 @@ def facet_noise(
         amplitude: (B, 1, H, W) amplitude, or None (one level per frame).
         min_noise: the floor of the map, in depth units (quantised depth can have a 0 residual).
         clip, bias: the fit's trimming (log units) and de-biasing (the module's defaults).
+        residuals: the (B, 1, H, W) residual variances of the 3 x 3 plane fits of ``depth`` when
+            the caller has them (NaN where a window is not valid); computed when None.
 
     Returns:
         (B, 1, H, W) noise in depth units, ``>= min_noise``; pixels with ``A <= 0`` get the value
@@ -350,7 +353,7 @@ def facet_noise(
         >>> round(float(facet_noise(d).median()), 3)
         0.01
     """
-    v = plane_fit(depth, 3, 3)[3]
+    v = plane_fit(depth, 3, 3)[3] if residuals is None else residuals
     ok = torch.isfinite(v) & (v > 0)
     lv = torch.log(torch.where(ok, v, torch.ones_like(v)))
     if amplitude is None:
