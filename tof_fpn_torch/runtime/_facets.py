@@ -87,31 +87,36 @@ def window_fit(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(m, g_x, g_y, v)`` of :func:`plane_fit` for ``size`` x ``size`` windows (``size`` odd)
     centred on the pixels of the map padded by ``out`` (each (B, 1, H + 2 out, W + 2 out)), from
-    ``padded``, the map padded by ``pad >= out + size // 2`` with NaN. The window sums are shifted
-    adds in float64 (a row pass, then a column pass; ``S_x``, ``S_y`` from differences of
-    mirrored pixels) and ``v = (Q - S m - S_x g_x - S_y g_y) / (N - 3)``: float64 keeps ``Q - S m``
-    exact to about 1e-9 of the noise variance. Returned in the dtype of ``padded``."""
+    ``padded``, the map padded by ``pad >= out + size // 2`` with NaN. The window sums are
+    in-place shifted adds in float64 (a row pass, then a column pass) and ``v = (Q - S^2 / N -
+    S_x^2 / X - S_y^2 / Y) / (N - 3)``: float64 keeps the difference exact to about 1e-9 of the
+    noise variance. Returned in the dtype of ``padded``."""
     h = size // 2
     rows = padded.shape[-2] - 2 * pad + 2 * out
     cols = padded.shape[-1] - 2 * pad + 2 * out
-    c0 = pad - out  # the first output row and column in ``padded``
-    z = padded[:, :, c0 - h : c0 + rows + h, :].to(torch.float64)
-    zq = torch.cat([z, z * z], 1)  # channel 0: z, channel 1: z^2
-    # row pass: window sums along x of z and z^2, and sum_x x z
-    hs = zq[:, :, :, c0 : c0 + cols].clone()
-    hx = torch.zeros_like(hs[:, 0:1])
+    c0 = pad - out - h  # the first row and column the windows touch
+    z = padded[:, :, c0 : c0 + rows + 2 * h, c0 : c0 + cols + 2 * h].to(torch.float64)
+    zz = z * z
+    # row pass: sums along x of z, z^2 and x z
+    hs = z[:, :, :, h : h + cols].clone()
+    hq = zz[:, :, :, h : h + cols].clone()
+    hx = torch.zeros_like(hs)
     for k in range(1, h + 1):
-        hs.add_(zq[:, :, :, c0 - k : c0 - k + cols]).add_(zq[:, :, :, c0 + k : c0 + k + cols])
-        hx.add_(z[:, :, :, c0 + k : c0 + k + cols] - z[:, :, :, c0 - k : c0 - k + cols], alpha=k)
-    # column pass
-    sq = hs[:, :, h : h + rows].clone()
+        left, right = z[:, :, :, h - k : h - k + cols], z[:, :, :, h + k : h + k + cols]
+        hs.add_(left).add_(right)
+        hq.add_(zz[:, :, :, h - k : h - k + cols]).add_(zz[:, :, :, h + k : h + k + cols])
+        hx.add_(right, alpha=k).sub_(left, alpha=k)
+    # column pass: S, Q, S_x, and S_y from the row sums
+    s = hs[:, :, h : h + rows].clone()
+    q = hq[:, :, h : h + rows].clone()
     sx = hx[:, :, h : h + rows].clone()
-    sy = torch.zeros_like(sx)
+    sy = torch.zeros_like(s)
     for k in range(1, h + 1):
-        sq.add_(hs[:, :, h - k : h - k + rows]).add_(hs[:, :, h + k : h + k + rows])
+        up, down = hs[:, :, h - k : h - k + rows], hs[:, :, h + k : h + k + rows]
+        s.add_(up).add_(down)
+        q.add_(hq[:, :, h - k : h - k + rows]).add_(hq[:, :, h + k : h + k + rows])
         sx.add_(hx[:, :, h - k : h - k + rows]).add_(hx[:, :, h + k : h + k + rows])
-        sy.add_(hs[:, 0:1, h + k : h + k + rows] - hs[:, 0:1, h - k : h - k + rows], alpha=k)
-    s, q = sq[:, 0:1], sq[:, 1:2]
+        sy.add_(down, alpha=k).sub_(up, alpha=k)
     count = float(size * size)
     moment = float(size * sum([k * k for k in range(-h, h + 1)]))
     m = s / count

@@ -180,7 +180,7 @@ def _between(
     at ``p - k u`` (side a). An absent pixel (invalid or off the frame) is ``+inf`` in one copy of
     the frame and ``-inf`` in the other, so each maximum and minimum skips it without a mask. A
     condition ``c > 0`` applies to a margin ``z`` as ``min(z, c * inf)`` with NaN (``c`` zero or
-    undefined) read as -inf."""
+    undefined) read as -inf. All temporaries are worked on in place."""
     pad = reach
     inf = math.inf
     rows, cols = x.shape[-2], x.shape[-1]
@@ -195,38 +195,43 @@ def _between(
         ap = torch.nan_to_num(a.clamp_min(0.0), nan=0.0)  # absent or <= 0: 0
     z_b = torch.full_like(x, -inf)
     for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
-        # low / high: the largest margin by which x is farther / nearer than a pixel of a side
-        low_a, high_a = torch.full_like(x, -inf), torch.full_like(x, -inf)
-        low_b, high_b = torch.full_like(x, -inf), torch.full_like(x, -inf)
+        # the extremes of E over k: at p (side b) and at p - k u (side a)
+        max_b, min_b, max_a, min_a = x, x, x, x  # (placeholders for TorchScript)
         for k in range(1, reach + 1):
             oy, ox = k * uy, k * ux
             y0, x0 = max(0, -oy), max(0, -ox)  # E on every r with r and r + k u in the padding
             h = xp.shape[-2] - abs(oy)
             w = xp.shape[-1] - abs(ox)
-            s = torch.sqrt(_win(h2p, y0, x0, h, w) + _win(h2p, y0 + oy, x0 + ox, h, w))
+            s = (_win(h2p, y0, x0, h, w) + _win(h2p, y0 + oy, x0 + ox, h, w)).sqrt_()
             e_lo = (_win(lo_p, y0, x0, h, w) - _win(lo_p, y0 + oy, x0 + ox, h, w)).div_(s)
             e_hi = (_win(hi_p, y0, x0, h, w) - _win(hi_p, y0 + oy, x0 + ox, h, w)).div_(s)
             by, bx = pad - y0, pad - x0  # p in E
-            low_b.clamp_min_(_win(e_lo, by, bx, rows, cols))
-            high_b.clamp_min_(-_win(e_hi, by, bx, rows, cols))
             ay, ax = by - oy, bx - ox  # p - k u in E
-            low_a.clamp_min_(-_win(e_lo, ay, ax, rows, cols))
-            high_a.clamp_min_(_win(e_hi, ay, ax, rows, cols))
-        near_a = _along(lo_p, -uy, -ux, reach, False)
-        near_b = _along(lo_p, uy, ux, reach, False)
-        far_a = _along(hi_p, -uy, -ux, reach, True)
-        far_b = _along(hi_p, uy, ux, reach, True)
-        z = torch.maximum(
-            _one_way(x, low_a, high_b, near_a, far_b, share),
-            _one_way(x, low_b, high_a, near_b, far_a, share),
-        )
+            lo_b, hi_b = _win(e_lo, by, bx, rows, cols), _win(e_hi, by, bx, rows, cols)
+            lo_a, hi_a = _win(e_lo, ay, ax, rows, cols), _win(e_hi, ay, ax, rows, cols)
+            if k == 1:
+                max_b, min_b, max_a, min_a = lo_b, hi_b, hi_a, lo_a
+            elif k == 2:
+                max_b, min_b = torch.maximum(max_b, lo_b), torch.minimum(min_b, hi_b)
+                max_a, min_a = torch.maximum(max_a, hi_a), torch.minimum(min_a, lo_a)
+            else:
+                max_b.clamp_min_(lo_b)
+                min_b.clamp_max_(hi_b)
+                max_a.clamp_min_(hi_a)
+                min_a.clamp_max_(lo_a)
+        # nearer than side b by -min_b and farther than side a by -min_a, or the other way round
+        z_ba = torch.minimum(max_b, max_a)
+        z_ab = min_a.clamp_min_(min_b).neg_()
+        near_a, near_b = _reach_extreme(lo_p, uy, ux, reach, False)
+        far_a, far_b = _reach_extreme(hi_p, uy, ux, reach, True)
+        z = _one_way(x, z_ab, near_a, far_b, share)
+        z.clamp_min_(_one_way(x, z_ba, near_b, far_a, share))
         if amplitude is not None and ap is not None:
-            bright = torch.maximum(
-                _along(ap, uy, ux, reach, True), _along(ap, -uy, -ux, reach, True)
-            )
+            bright_a, bright_b = _reach_extreme(ap, uy, ux, reach, True)
+            both = torch.maximum(bright_a, bright_b)
             # A <= (1 + tolerance) max A_q: sign(d) + 0.5 > 0 iff d >= 0, and never 0
-            mixture = bright.mul_(1.0 + tolerance).sub_(amplitude).sign_().add_(0.5)
-            z = torch.minimum(z, mixture.mul_(inf))
+            mixture = both.mul_(1.0 + tolerance).sub_(amplitude).sign_().add_(0.5)
+            z.clamp_max_(mixture.mul_(inf))
         z_b.clamp_min_(z)
     return z_b
 
@@ -236,36 +241,45 @@ def _win(t: torch.Tensor, y: int, x: int, h: int, w: int) -> torch.Tensor:
     return t[:, :, y : y + h, x : x + w]
 
 
-def _along(padded: torch.Tensor, uy: int, ux: int, reach: int, largest: bool) -> torch.Tensor:
-    """The largest (``largest``) or smallest value of ``padded`` (padded by ``reach``, no NaN)
-    at ``k (uy, ux)`` from every pixel, ``k = 1 .. reach``."""
-    out = shifted(padded, uy, ux, reach).clone()
-    for k in range(2, reach + 1):
-        q = shifted(padded, k * uy, k * ux, reach)
-        if largest:
-            out.clamp_min_(q)
-        else:
-            out.clamp_max_(q)
-    return out
+def _reach_extreme(
+    padded: torch.Tensor, uy: int, ux: int, reach: int, largest: bool
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(side a, side b)``: the largest (``largest``) or smallest value of ``padded`` (a frame
+    padded by ``reach``, no NaN) at ``-k (uy, ux)`` and at ``k (uy, ux)`` from every pixel, ``k =
+    1 .. reach``. Both are views of one map of the extremes of ``reach`` consecutive pixels along
+    the line, built by doubling (2 passes for ``reach`` 4)."""
+    rows = padded.shape[-2] - 2 * reach
+    cols = padded.shape[-1] - 2 * reach
+    out = padded
+    width = 1
+    while width < reach:
+        step = min(width, reach - width)
+        h = out.shape[-2] - step * abs(uy)
+        w = out.shape[-1] - step * abs(ux)
+        # out'[i] = extreme of out[i] and out[i + step u] (a negative component shifts the origin)
+        first = _win(out, step if uy < 0 else 0, step if ux < 0 else 0, h, w)
+        second = _win(out, step if uy > 0 else 0, step if ux > 0 else 0, h, w)
+        out = torch.maximum(first, second) if largest else torch.minimum(first, second)
+        width += step
+    # out[i] = extreme of padded[i + o + k u], k = 0 .. reach - 1; o: the origin of out
+    oy = 0 if uy >= 0 else reach - 1
+    ox = 0 if ux >= 0 else reach - 1
+    side_a = _win(out, reach - reach * uy - oy, reach - reach * ux - ox, rows, cols)
+    side_b = _win(out, reach + uy - oy, reach + ux - ox, rows, cols)
+    return side_a, side_b
 
 
 def _one_way(
-    x: torch.Tensor,
-    lower: torch.Tensor,
-    higher: torch.Tensor,
-    near: torch.Tensor,
-    far: torch.Tensor,
-    share: float,
+    x: torch.Tensor, z: torch.Tensor, near: torch.Tensor, far: torch.Tensor, share: float
 ) -> torch.Tensor:
-    """The margin by which ``x`` is farther than one side (``lower``) and nearer than the other
-    (``higher``); -inf unless it lies ``share`` of the way from ``near`` (one side's nearest
-    depth) and from ``far`` (the other's farthest)."""
-    z = torch.minimum(lower, higher)
+    """``z`` (the margin by which ``x`` is farther than one side and nearer than the other; worked
+    on in place) where ``x`` lies ``share`` of the way from ``near`` (one side's nearest depth) and
+    from ``far`` (the other's farthest), -inf elsewhere."""
     if share > 0.0:
         gap = (far - near).mul_(share)
         # x - near > gap and far - x > gap: the smaller difference > 0 (NaN where a side is absent)
         inside = (x - near).sub_(gap).clamp_max_((far - x).sub_(gap))
-        z = torch.minimum(z, inside.mul_(math.inf)).nan_to_num_(
+        z = z.clamp_max_(inside.mul_(math.inf)).nan_to_num_(
             nan=-math.inf, posinf=math.inf, neginf=-math.inf
         )
     return z
