@@ -63,7 +63,7 @@ import torch
 import torch.nn.functional as F
 
 from ._checks import check_image, check_same_shape, check_tensor_type
-from ._facets import local_noise, nearest_kept, shifted, window_fit
+from ._facets import local_noise, nearest_kept, shifted, window_fit, window_variance
 from .noise import facet_noise
 from .stage import RecordField, Setting, Stage
 from .validity import valid_mask
@@ -318,7 +318,7 @@ def _flying(
         amp = torch.where(valid, amplitude.to(work), torch.full_like(d, math.nan))
     pad = 4 + size // 2  # facets centred up to 4 px off the frame
     xp = F.pad(x, (pad, pad, pad, pad), value=float("nan"))
-    v3 = window_fit(xp, pad, 3, 0)[3]
+    v3 = window_variance(xp, pad, 3, 0)
     sigma = local_noise(v3, facet_noise(x, amp, min_noise, residuals=v3), local, clip)
     z_s = _support(x, sigma, window_fit(xp, pad, size, 4), facet_fit, size)
     z_b = _between(x, sigma, amp, tolerance, reach, share)

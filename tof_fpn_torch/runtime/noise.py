@@ -354,12 +354,12 @@ def facet_noise(
         0.01
     """
     v = plane_fit(depth, 3, 3)[3] if residuals is None else residuals
-    ok = torch.isfinite(v) & (v > 0)
+    ok = (v > 0) & (v < math.inf)  # finite and > 0 (NaN fails both)
     lv = torch.log(torch.where(ok, v, torch.ones_like(v)))
     if amplitude is None:
         la = torch.zeros_like(v)
     else:
-        a_ok = torch.isfinite(amplitude) & (amplitude > 0)
+        a_ok = (amplitude > 0) & (amplitude < math.inf)
         ok = ok & a_ok
         la = torch.log(torch.where(a_ok, amplitude, torch.ones_like(amplitude)))
     w = ok.to(v.dtype)
@@ -372,8 +372,10 @@ def facet_noise(
         mx = (w * la).sum(dims, keepdim=True) / nz
         my = (w * lv).sum(dims, keepdim=True) / nz
         if amplitude is not None:
-            cov = (w * (la - mx) * (lv - my)).sum(dims, keepdim=True)
-            var = (w * (la - mx) * (la - mx)).sum(dims, keepdim=True)
+            dla = la - mx
+            wdla = w * dla
+            cov = (wdla * (lv - my)).sum(dims, keepdim=True)
+            var = (wdla * dla).sum(dims, keepdim=True)
             gamma = torch.clamp(-cov / var.clamp_min(1e-12), 0.0, 2.0)
         c0 = torch.where(n > 0, my + gamma * mx, torch.full_like(c0, -1e30))
         keep = (lv - (c0 - gamma * la)).abs() < clip
