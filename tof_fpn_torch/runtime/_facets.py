@@ -96,7 +96,9 @@ def window_fit(
     """``(m, g_x, g_y, v)`` of :func:`plane_fit` for ``size`` x ``size`` windows (``size`` odd)
     centred on the pixels of the map padded by ``out`` (each (B, 1, H + 2 out, W + 2 out)), from
     ``padded``, the map padded by ``pad >= out + size // 2`` with NaN (:func:`_window_sums`).
-    Returned in the dtype of ``padded``."""
+    ``m`` and ``v`` are NaN where the window touches a NaN or leaves the image; ``g_x`` and ``g_y``
+    can be numbers there (they skip the centre column and row). Returned in the dtype of
+    ``padded``."""
     s, q, sx, sy = _window_sums(padded, pad, size, out)
     count, moment = float(size * size), _moment(size)
     m = s / count
