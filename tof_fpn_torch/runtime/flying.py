@@ -134,7 +134,7 @@ def _support(
     pad = 4
     sp = F.pad(sigma, (pad, pad, pad, pad), value=1.0)
     surface = v <= facet_fit * sp * sp  # NaN (a window off the valid pixels): False
-    fp = ~torch.isnan(v)
+    fp = v >= 0.0  # all its pixels valid (v is NaN otherwise)
     mp = torch.where(surface, m, torch.full_like(m, -math.inf))
     gxp = torch.nan_to_num(gx, nan=0.0)
     gyp = torch.nan_to_num(gy, nan=0.0)
@@ -193,8 +193,8 @@ def _between(
     if amplitude is not None:
         a = F.pad(amplitude, (pad, pad, pad, pad), value=0.0)
         ap = torch.nan_to_num(a.clamp_min(0.0), nan=0.0)  # absent or <= 0: 0
-    z_b = torch.full_like(x, -inf)
-    for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
+    z_b = x  # (placeholder for TorchScript)
+    for line, (uy, ux) in enumerate([(0, 1), (1, 0), (1, 1), (1, -1)]):
         # the extremes of E over k: at p (side b) and at p - k u (side a)
         max_b, min_b, max_a, min_a = x, x, x, x  # (placeholders for TorchScript)
         for k in range(1, reach + 1):
@@ -220,7 +220,8 @@ def _between(
                 max_a.clamp_min_(hi_a)
                 min_a.clamp_max_(lo_a)
         # nearer than side b by -min_b and farther than side a by -min_a, or the other way round
-        z_ba = torch.minimum(max_b, max_a)
+        # (in place unless reach is 1: then max_b and min_a are views of the same E)
+        z_ba = max_b.clamp_max_(max_a) if reach > 1 else torch.minimum(max_b, max_a)
         z_ab = min_a.clamp_min_(min_b).neg_()
         near_a, near_b = _reach_extreme(lo_p, uy, ux, reach, False)
         far_a, far_b = _reach_extreme(hi_p, uy, ux, reach, True)
@@ -232,7 +233,10 @@ def _between(
             # A <= (1 + tolerance) max A_q: sign(d) + 0.5 > 0 iff d >= 0, and never 0
             mixture = both.mul_(1.0 + tolerance).sub_(amplitude).sign_().add_(0.5)
             z.clamp_max_(mixture.mul_(inf))
-        z_b.clamp_min_(z)
+        if line == 0:
+            z_b = z
+        else:
+            z_b.clamp_min_(z)
     return z_b
 
 
@@ -322,9 +326,9 @@ def _flying(
     sigma = local_noise(v3, facet_noise(x, amp, min_noise, residuals=v3), local, clip)
     z_s = _support(x, sigma, window_fit(xp, pad, size, 4), facet_fit, size)
     z_b = _between(x, sigma, amp, tolerance, reach, share)
-    q = torch.minimum(z_s, z_b)
+    q = z_s.clamp_max_(z_b)  # min(z_s, z_b)
     flagged = valid & (q > threshold)
-    conf = torch.clamp((threshold + softness - q) / (2.0 * softness), 0.0, 1.0)
+    conf = q.neg_().add_(threshold + softness).div_(2.0 * softness).clamp_(0.0, 1.0)
     conf = torch.where(valid, conf, torch.zeros_like(conf))
     if action == "mark":
         return depth.clone(), conf.to(depth.dtype)
