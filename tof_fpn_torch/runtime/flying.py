@@ -178,7 +178,8 @@ def _between(
     The normalised difference ``E = (x_r - x_q) / sqrt(h_r + h_q)`` of each pixel ``r`` and its
     neighbour ``q = r + k u`` is computed once on the padded frame and read at ``p`` (side b) and
     at ``p - k u`` (side a). An absent pixel (invalid or off the frame) is ``+inf`` in one copy of
-    the frame and ``-inf`` in the other, so each maximum and minimum skips it without a mask. A
+    the frame and ``-inf`` in the other (its ``E`` is the first copy's with the infinities
+    swapped), so each maximum and minimum skips it without a mask. A
     condition ``c > 0`` applies to a margin ``z`` as ``min(z, c * inf)`` with NaN (``c`` zero or
     undefined) read as -inf. All temporaries are worked on in place."""
     pad = reach
@@ -204,7 +205,8 @@ def _between(
             w = xp.shape[-1] - abs(ox)
             s = (_win(h2p, y0, x0, h, w) + _win(h2p, y0 + oy, x0 + ox, h, w)).sqrt_()
             e_lo = (_win(lo_p, y0, x0, h, w) - _win(lo_p, y0 + oy, x0 + ox, h, w)).div_(s)
-            e_hi = (_win(hi_p, y0, x0, h, w) - _win(hi_p, y0 + oy, x0 + ox, h, w)).div_(s)
+            # E of the other copy: the same numbers, the infinities (an absent pixel) swapped
+            e_hi = torch.nan_to_num(e_lo, nan=math.nan, posinf=-inf, neginf=inf)
             by, bx = pad - y0, pad - x0  # p in E
             ay, ax = by - oy, bx - ox  # p - k u in E
             lo_b, hi_b = _win(e_lo, by, bx, rows, cols), _win(e_hi, by, bx, rows, cols)
