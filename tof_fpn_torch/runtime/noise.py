@@ -366,7 +366,7 @@ def facet_noise(
     c0 = torch.zeros(v.shape[0], 1, 1, 1, dtype=v.dtype, device=v.device)
     gamma = torch.zeros_like(c0)
     dims = [1, 2, 3]
-    for _it in range(3):
+    for it in range(3):
         n = w.sum(dims, keepdim=True)
         nz = n.clamp_min(1.0)
         mx = (w * la).sum(dims, keepdim=True) / nz
@@ -378,11 +378,13 @@ def facet_noise(
             var = (wdla * dla).sum(dims, keepdim=True)
             gamma = torch.clamp(-cov / var.clamp_min(1e-12), 0.0, 2.0)
         c0 = torch.where(n > 0, my + gamma * mx, torch.full_like(c0, -1e30))
-        keep = (lv - (c0 - gamma * la)).abs() < clip
-        w = (ok & keep).to(v.dtype)
+        if it < 2:  # the weights of the next round: |lv - (c0 - gamma la)| < clip
+            keep = (gamma * la).neg_().add_(c0).neg_().add_(lv).abs_() < clip
+            w = (ok & keep).to(v.dtype)
     if amplitude is None:
         la_px = torch.zeros_like(depth)
     else:
         la_px = torch.log(torch.clamp(torch.nan_to_num(amplitude, nan=1.0), min=1e-6))
-    sigma = torch.exp(0.5 * (c0 - gamma * la_px + bias))
-    return torch.clamp(sigma, min=min_noise)
+    # exp(0.5 (c0 - gamma la + bias)), worked on in place
+    sigma = (gamma * la_px).neg_().add_(c0).add_(bias).mul_(0.5).exp_()
+    return sigma.clamp_(min=min_noise)
