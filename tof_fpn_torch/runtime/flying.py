@@ -179,9 +179,9 @@ def _between(
     neighbour ``q = r + k u`` is computed once on the padded frame and read at ``p`` (side b) and
     at ``p - k u`` (side a). An absent pixel (invalid or off the frame) is ``+inf`` in one copy of
     the frame and ``-inf`` in the other (its ``E`` is the first copy's with the infinities
-    swapped), so each maximum and minimum skips it without a mask. A
-    condition ``c > 0`` applies to a margin ``z`` as ``min(z, c * inf)`` with NaN (``c`` zero or
-    undefined) read as -inf. All temporaries are worked on in place."""
+    swapped), so each maximum and minimum skips it without a mask. A condition ``c > 0`` applies
+    to a margin ``z`` as ``min(z, c * inf)`` with NaN (``c`` zero or undefined) read as -inf.
+    Temporaries are worked on in place where they can be."""
     pad = reach
     inf = math.inf
     rows, cols = x.shape[-2], x.shape[-1]
