@@ -257,3 +257,105 @@ def test_clean_writes_the_confidence_map(tmp_path):
     assert "flying_confidence = true" in (out / "clean.toml").read_text()
     with pytest.raises(ValueError, match="flying_confidence needs"):
         CleanConfig(flying_confidence=True)
+
+
+def _holed_surface(seed: int, h: int = 14, w: int = 17) -> torch.Tensor:
+    """A slanted float64 surface with a 1 m step, 5 mm noise and a few invalid pixels (NaN)."""
+    g = torch.Generator().manual_seed(seed)
+    yy = torch.arange(h, dtype=torch.float64).view(-1, 1)
+    xx = torch.arange(w, dtype=torch.float64).view(1, -1)
+    x = 2.0 + 0.01 * yy - 0.02 * xx + torch.where(xx > w // 2, 1.0, 0.0)
+    x = x + 0.005 * torch.randn(h, w, generator=g, dtype=torch.float64)
+    x[3, 4] = x[7, 10] = x[8, 10] = x[h - 1, 2] = math.nan
+    return x.view(1, 1, h, w)
+
+
+@pytest.mark.parametrize("size", [3, 5, 7])
+def test_window_fit_equals_the_convolution_fit(size):
+    """The shifted-add window sums give the plane fits of the convolution and residual loop
+    (``plane_fit``), NaN where a window touches an invalid pixel or leaves the frame, also on the
+    padded domain the facets need."""
+    from torch.nn import functional as F
+
+    from tof_fpn_torch.runtime._facets import plane_fit, window_fit, window_variance
+
+    x = _holed_surface(size)
+    want = plane_fit(x, size, size)
+    for out in (0, 3):
+        pad = out + size // 2 + 1
+        got = window_fit(F.pad(x, (pad, pad, pad, pad), value=math.nan), pad, size, out)
+        v = window_variance(F.pad(x, (pad, pad, pad, pad), value=math.nan), pad, size, out)
+        torch.testing.assert_close(v, got[3], rtol=0, atol=0, equal_nan=True)
+        ring = torch.ones_like(got[0], dtype=torch.bool)
+        ring[..., out : out + x.shape[-2], out : out + x.shape[-1]] = False
+        assert bool(got[0][ring].isnan().all()) and bool(got[3][ring].isnan().all())
+        fit = ~want[0].isnan()  # g_x, g_y: only where m is a number (they skip the centre line)
+        assert bool((fit == ~want[3].isnan()).all()) and bool((~fit).any())
+        for g, w in zip(got, want, strict=True):
+            inner = g[..., out : out + x.shape[-2], out : out + x.shape[-1]]
+            torch.testing.assert_close(inner[fit], w[fit], rtol=1e-9, atol=1e-12)
+        for k in (0, 3):
+            assert bool(
+                got[k][..., out : out + x.shape[-2], out : out + x.shape[-1]][~fit].isnan().all()
+            )
+
+
+def _between_by_loops(x, sigma, amp, tolerance, reach, share):
+    """``z_b`` of the module docstring pixel by pixel in Python floats (the reference)."""
+    h, w = x.shape[-2:]
+    xs, h2 = x[0, 0].tolist(), (0.5 * sigma * sigma)[0, 0].tolist()
+    am = None if amp is None else amp[0, 0].tolist()
+    out = torch.full_like(x, -math.inf)
+    for i in range(h):
+        for j in range(w):
+            if math.isnan(xs[i][j]):
+                continue
+            best = -math.inf
+            for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
+                sides = []
+                for sign in (-1, 1):  # side a, side b
+                    q = [(i + sign * k * uy, j + sign * k * ux) for k in range(1, reach + 1)]
+                    sides.append([(a, b) for a, b in q if 0 <= a < h and 0 <= b < w])
+                present = [[(a, b) for a, b in s if not math.isnan(xs[a][b])] for s in sides]
+
+                def margin(pts, sgn, i=i, j=j):
+                    vals = [
+                        sgn * (xs[i][j] - xs[a][b]) / math.sqrt(h2[i][j] + h2[a][b]) for a, b in pts
+                    ]
+                    return max(vals, default=-math.inf)
+
+                z = -math.inf
+                for one, other in ((0, 1), (1, 0)):
+                    lower, higher = margin(present[one], 1), margin(present[other], -1)
+                    near = min([xs[a][b] for a, b in present[one]], default=math.inf)
+                    far = max([xs[a][b] for a, b in present[other]], default=-math.inf)
+                    gap = share * (far - near)
+                    if xs[i][j] - near > gap and far - xs[i][j] > gap:
+                        z = max(z, min(lower, higher))
+                if am is not None:
+                    line = [max(am[a][b], 0.0) for s in present for a, b in s]
+                    if not am[i][j] <= (1.0 + tolerance) * max(line, default=0.0):
+                        z = -math.inf
+                best = max(best, z)
+            out[0, 0, i, j] = best
+    return out
+
+
+@pytest.mark.parametrize("reach", [1, 3, 4])
+def test_between_margin_equals_pixel_loops(reach):
+    """The between test (shared pair differences, +-inf for absent pixels, extremes by doubling)
+    equals a pixel-by-pixel loop over the lines, with holes, frame borders and the amplitude."""
+    from tof_fpn_torch.runtime.flying import _between
+
+    x = _holed_surface(10 + reach)
+    g = torch.Generator().manual_seed(reach)
+    sigma = 0.004 + 0.004 * torch.rand(x.shape, generator=g, dtype=torch.float64)
+    amp = 50.0 + 100.0 * torch.rand(x.shape, generator=g, dtype=torch.float64)
+    amp[0, 0, 5, 6] = -1.0
+    valid = ~x.isnan()
+    amp = torch.where(valid, amp, math.nan)  # as the stage passes it
+    for a in (amp, None):
+        got = _between(x, sigma, a, 0.1, reach, 0.03)
+        want = _between_by_loops(x, sigma, a, 0.1, reach, 0.03)
+        assert bool((want[valid] > 0).any()) and bool((want[valid] == -math.inf).any())
+        torch.testing.assert_close(got[valid], want[valid], rtol=1e-12, atol=0)

@@ -15,9 +15,11 @@ which every comparison downstream reads as False. The facet's value at an offset
 ``m + g_y dy + g_x dx``; its variance for i.i.d. noise of variance ``s^2`` is
 ``s^2 (1 / N + dy^2 / Y + dx^2 / X)``.
 
-Also here, for the flying-pixel stage (:mod:`.flying`): :func:`local_noise` (the noise map raised
-to the local level of the 3 x 3 facet residuals) and :func:`nearest_kept` (the depth a reassigned
-pixel takes).
+Also here, for the flying-pixel stage (:mod:`.flying`): :func:`window_fit` (the same fits from
+float64 window sums of shifted adds, on a padded domain: several times faster than the
+convolution and the per-pixel residual loop), :func:`local_noise` (the noise map raised to the
+local level of the 3 x 3 facet residuals) and :func:`nearest_kept` (the depth a reassigned pixel
+takes).
 """
 
 from __future__ import annotations
@@ -27,7 +29,15 @@ import math
 import torch
 import torch.nn.functional as F
 
-__all__ = ["facet_sums", "local_noise", "nearest_kept", "plane_fit", "shifted"]
+__all__ = [
+    "facet_sums",
+    "local_noise",
+    "nearest_kept",
+    "plane_fit",
+    "shifted",
+    "window_fit",
+    "window_variance",
+]
 
 
 def facet_sums(
@@ -80,20 +90,115 @@ def shifted(padded: torch.Tensor, dy: int, dx: int, pad: int) -> torch.Tensor:
     return padded[:, :, pad + dy : pad + dy + h, pad + dx : pad + dx + w]
 
 
-def local_noise(x: torch.Tensor, law: torch.Tensor, size: int, clip: float) -> torch.Tensor:
+def window_fit(
+    padded: torch.Tensor, pad: int, size: int, out: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(m, g_x, g_y, v)`` of :func:`plane_fit` for ``size`` x ``size`` windows (``size`` odd)
+    centred on the pixels of the map padded by ``out`` (each (B, 1, H + 2 out, W + 2 out)), from
+    ``padded``, the map padded by ``pad >= out + size // 2`` with NaN (:func:`_window_sums`).
+    ``m`` and ``v`` are NaN where the window touches a NaN or leaves the image; ``g_x`` and ``g_y``
+    can be numbers there (they skip the centre column and row). Returned in the dtype of
+    ``padded``."""
+    s, q, sx, sy = _window_sums(padded, pad, size, out)
+    count, moment = float(size * size), _moment(size)
+    m = s / count
+    gx = sx / moment
+    gy = sy / moment
+    q.sub_(s * m).sub_(sx * gx).sub_(sy * gy).clamp_min_(0.0).div_(count - 3.0)
+    dt = padded.dtype
+    return m.to(dt), gx.to(dt), gy.to(dt), q.to(dt)
+
+
+def window_variance(padded: torch.Tensor, pad: int, size: int, out: int) -> torch.Tensor:
+    """``v`` of :func:`window_fit` alone."""
+    s, q, sx, sy = _window_sums(padded, pad, size, out)
+    count, moment = float(size * size), _moment(size)
+    v = q.sub_(s * (s / count)).sub_(sx * (sx / moment)).sub_(sy * (sy / moment))
+    return v.clamp_min_(0.0).div_(count - 3.0).to(padded.dtype)
+
+
+def _moment(size: int) -> float:
+    """``X = Y`` of a ``size`` x ``size`` window."""
+    return float(size * sum([k * k for k in range(-(size // 2), size // 2 + 1)]))
+
+
+def _window_sums(
+    padded: torch.Tensor, pad: int, size: int, out: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(S, Q, S_x, S_y)`` in float64 of the windows of :func:`window_fit`: shifted adds, a row
+    pass then a column pass. float64 keeps ``Q - S^2 / N`` exact to about 1e-9 of the noise
+    variance (float32 would lose it to the rounding of ``Q``)."""
+    h = size // 2
+    rows = padded.shape[-2] - 2 * pad + 2 * out
+    cols = padded.shape[-1] - 2 * pad + 2 * out
+    c0 = pad - out - h  # the first row and column the windows touch
+    z = padded[:, :, c0 : c0 + rows + 2 * h, c0 : c0 + cols + 2 * h].to(torch.float64)
+    zz = z * z
+    hs = _centred_sum(z, h, cols, 3)  # row pass: sums along x of z, z^2 and x z
+    hq = _centred_sum(zz, h, cols, 3)
+    hx = _moment_sum(z, h, cols, 3)
+    s = _centred_sum(hs, h, rows, 2)  # column pass
+    q = _centred_sum(hq, h, rows, 2)
+    sx = _centred_sum(hx, h, rows, 2)
+    sy = _moment_sum(hs, h, rows, 2)
+    return s, q, sx, sy
+
+
+def _centred_sum(t: torch.Tensor, h: int, n: int, dim: int) -> torch.Tensor:
+    """``t[i + h] + sum_k (t[i + h - k] + t[i + h + k])``, ``k = 1 .. h``, along ``dim`` (length
+    ``n``), added in this order."""
+    out = t.narrow(dim, h, n).clone() if h == 0 else t.narrow(dim, h, n) + t.narrow(dim, h - 1, n)
+    for k in range(1, h + 1):
+        if k > 1:
+            out.add_(t.narrow(dim, h - k, n))
+        out.add_(t.narrow(dim, h + k, n))
+    return out
+
+
+def _moment_sum(t: torch.Tensor, h: int, n: int, dim: int) -> torch.Tensor:
+    """``sum_k k (t[i + h + k] - t[i + h - k])``, ``k = 1 .. h``, along ``dim`` (length ``n``)."""
+    out = t.narrow(dim, h + 1, n) - t.narrow(dim, h - 1, n)
+    for k in range(2, h + 1):
+        out.add_(t.narrow(dim, h + k, n), alpha=k).sub_(t.narrow(dim, h - k, n), alpha=k)
+    return out
+
+
+def local_noise(v: torch.Tensor, law: torch.Tensor, size: int, clip: float) -> torch.Tensor:
     """The noise map raised to the local level where the data are noisier than the law: the root
-    of the mean over a ``size`` x ``size`` window of the 3 x 3 facet residual variances, each
-    clipped at ``clip`` times the law's variance (a window across an edge counts as that)."""
-    v = plane_fit(x, 3, 3)[3]
+    of the mean over a ``size`` x ``size`` window of the 3 x 3 facet residual variances ``v``
+    (NaN where a window is not valid), each clipped at ``clip`` times the law's variance (a window
+    across an edge counts as that)."""
     cap = clip * law * law
-    ok = torch.isfinite(v)
-    vc = torch.where(ok, torch.minimum(v, cap), torch.zeros_like(v))
+    vc = torch.minimum(v, cap)
+    ok = (vc * 0.0).add_(1.0).nan_to_num_(nan=0.0)  # 1 where v is a number, else 0
     pad = size // 2
-    both = F.pad(torch.cat([vc, ok.to(v.dtype)], 1), (pad, pad, pad, pad))
-    means = F.avg_pool2d(F.avg_pool2d(both, (1, size), 1), (size, 1), 1)  # separable: 2 x 7, not 49
-    total, count = means[:, 0:1], means[:, 1:2]
-    local = torch.sqrt(total / count.clamp_min(1.0 / float(size * size)))
+    both = F.pad(torch.cat([vc.nan_to_num_(nan=0.0), ok], 1), (pad, pad, pad, pad))
+    box = _box_sum(_box_sum(both, size, 3), size, 2)
+    local = torch.sqrt(box[:, 0:1] / box[:, 1:2].clamp_min(1.0))
     return torch.maximum(law, local)
+
+
+def _box_sum(t: torch.Tensor, size: int, dim: int) -> torch.Tensor:
+    """Sums of ``size`` consecutive values of ``t`` along ``dim`` (the length shrinks by ``size -
+    1``) from the sums of 1, 2, 4, ... values (doubling): 3 passes for 5 values, 4 for 7."""
+    n = t.shape[dim] - size + 1
+    parts = [t]  # parts[j]: sums of 2^j consecutive values
+    while (1 << len(parts)) <= size:
+        last, width = parts[-1], 1 << (len(parts) - 1)
+        m = last.shape[dim] - width
+        parts.append(last.narrow(dim, 0, m) + last.narrow(dim, width, m))
+    pieces: list[torch.Tensor] = []
+    done = 0
+    for j in range(len(parts) - 1, -1, -1):
+        if size & (1 << j):
+            pieces.append(parts[j].narrow(dim, done, n))
+            done += 1 << j
+    if len(pieces) == 1:
+        return pieces[0].clone()
+    out = pieces[0] + pieces[1]
+    for piece in pieces[2:]:
+        out.add_(piece)
+    return out
 
 
 def nearest_kept(x: torch.Tensor, keep: torch.Tensor, radius: int) -> torch.Tensor:

@@ -63,7 +63,7 @@ import torch
 import torch.nn.functional as F
 
 from ._checks import check_image, check_same_shape, check_tensor_type
-from ._facets import local_noise, nearest_kept, plane_fit, shifted
+from ._facets import local_noise, nearest_kept, shifted, window_fit, window_variance
 from .noise import facet_noise
 from .stage import RecordField, Setting, Stage
 from .validity import valid_mask
@@ -117,40 +117,48 @@ RULE: tuple[float, float, float, float, int, int, int, int] = (
 )
 
 
-def _support(x: torch.Tensor, sigma: torch.Tensor, facet_fit: float, size: int) -> torch.Tensor:
+def _support(
+    x: torch.Tensor,
+    sigma: torch.Tensor,
+    fit: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+    facet_fit: float,
+    size: int,
+) -> torch.Tensor:
     """``z_s``: the smallest distance of ``x`` to a surface facet's extrapolation in units of its
     standard deviation (inf where no facet is a surface; -inf where no facet has all its pixels
     valid, so no test applies). Facets: ``size`` x ``size`` (5) windows centred 3 and 4 pixels
     away in the 8 directions (a narrower window fits a 3-pixel ramp through a mixed pixel as well
-    as it fits a surface)."""
-    m, gx, gy, v = plane_fit(x, size, size)
+    as it fits a surface); ``fit``: their :func:`._facets.window_fit` on the frame padded by 4. A
+    facet that is no surface gets the mean -inf, so its distance is inf (no NaN to skip)."""
+    m, gx, gy, v = fit
     pad = 4
-    nan = float("nan")
-    # 1 / sigma at a surface facet's centre, NaN at any other (every comparison with it is False)
-    inv = torch.where(v <= facet_fit * sigma * sigma, 1.0 / sigma, torch.full_like(v, nan))
-    mp = F.pad(m, (pad, pad, pad, pad), value=nan)
-    gxp = F.pad(gx, (pad, pad, pad, pad), value=nan)
-    gyp = F.pad(gy, (pad, pad, pad, pad), value=nan)
-    ip = F.pad(inv, (pad, pad, pad, pad), value=nan)
-    fp = F.pad(torch.isfinite(v), (pad, pad, pad, pad), value=False)
+    sp = F.pad(sigma, (pad, pad, pad, pad), value=1.0)
+    surface = v <= facet_fit * sp * sp  # NaN (a window off the valid pixels): False
+    fp = v >= 0.0  # all its pixels valid (v is NaN otherwise)
+    mp = torch.where(surface, m, torch.full_like(m, -math.inf))
+    gxp = torch.nan_to_num(gx, nan=0.0)
+    gyp = torch.nan_to_num(gy, nan=0.0)
+    inv = 1.0 / sp
     count = float(size * size)
     moment = float(size * sum([k * k for k in range(-(size // 2), size // 2 + 1)]))
     z_s = torch.full_like(x, math.inf)
     seen = torch.zeros_like(x, dtype=torch.bool)
-    for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
-        for sign in [-1, 1]:
-            for dist in [3, 4]:
-                oy = sign * dist * uy
-                ox = sign * dist * ux
-                pred = shifted(mp, oy, ox, pad)
-                if oy != 0:
-                    pred = pred - oy * shifted(gyp, oy, ox, pad)
-                if ox != 0:
-                    pred = pred - ox * shifted(gxp, oy, ox, pad)
-                seen = seen | shifted(fp, oy, ox, pad)
-                k = 1.0 / math.sqrt(1.0 + 1.0 / count + float(oy * oy + ox * ox) / moment)
-                z = (x - pred).abs() * (shifted(ip, oy, ox, pad) * k)
-                z_s = torch.where(z < z_s, z, z_s)
+    for diagonal in [False, True]:
+        for dist in [3, 4]:
+            r2 = float(2 * dist * dist) if diagonal else float(dist * dist)
+            w = inv * (1.0 / math.sqrt(1.0 + 1.0 / count + r2 / moment))
+            lines = [(1, 1), (1, -1)] if diagonal else [(0, 1), (1, 0)]
+            for uy, ux in lines:
+                for sign in [-1, 1]:
+                    oy = sign * dist * uy
+                    ox = sign * dist * ux
+                    z = x - shifted(mp, oy, ox, pad)  # x - P_f = x - m + oy g_y + ox g_x
+                    if oy != 0:
+                        z.add_(shifted(gyp, oy, ox, pad), alpha=oy)
+                    if ox != 0:
+                        z.add_(shifted(gxp, oy, ox, pad), alpha=ox)
+                    z_s.clamp_max_(z.abs_().mul_(shifted(w, oy, ox, pad)))
+                    seen.logical_or_(shifted(fp, oy, ox, pad))
     return torch.where(seen, z_s, torch.full_like(x, -math.inf))
 
 
@@ -165,79 +173,121 @@ def _between(
     """``z_b``: the largest margin (noise units) by which ``x`` lies between the two sides of one
     of the 4 lines through it (-inf where it lies between none), looking ``reach`` pixels out; a
     line counts where ``x`` is at least ``share`` of the way from each side's extreme to the
-    other's. The normalised difference ``D`` of a pixel and its neighbour at ``+o`` is computed
-    once and read at the neighbour, negated, for ``-o``; invalid (NaN) pixels count as absent."""
+    other's.
+
+    The normalised difference ``E = (x_r - x_q) / sqrt(h_r + h_q)`` of each pixel ``r`` and its
+    neighbour ``q = r + k u`` is computed once on the padded frame and read at ``p`` (side b) and
+    at ``p - k u`` (side a). An absent pixel (invalid or off the frame) is ``+inf`` in one copy of
+    the frame and ``-inf`` in the other (its ``E`` is the first copy's with the infinities
+    swapped), so each maximum and minimum skips it without a mask. A condition ``c > 0`` applies
+    to a margin ``z`` as ``min(z, c * inf)`` with NaN (``c`` zero or undefined) read as -inf.
+    Temporaries are worked on in place where they can be."""
     pad = reach
     inf = math.inf
+    rows, cols = x.shape[-2], x.shape[-1]
     xp = F.pad(x, (pad, pad, pad, pad), value=float("nan"))
+    lo_p = torch.nan_to_num(xp, nan=inf, posinf=inf, neginf=-inf)  # absent: never the nearest
+    hi_p = torch.nan_to_num(xp, nan=-inf, posinf=inf, neginf=-inf)  # nor the farthest
     h2 = 0.5 * sigma * sigma
-    h2p = F.pad(h2, (pad, pad, pad, pad), value=float("nan"))
-    absent = torch.isnan(xp)
-    lo_p = torch.where(absent, torch.full_like(xp, inf), xp)  # absent: never the nearest
-    hi_p = torch.where(absent, torch.full_like(xp, -inf), xp)  # nor the farthest
+    h2p = F.pad(h2, (pad, pad, pad, pad), value=1.0)
     ap: torch.Tensor | None = None
     if amplitude is not None:
-        a = F.pad(amplitude, (pad, pad, pad, pad), value=float("nan"))
-        ap = torch.where(a > 0, a, torch.zeros_like(a))
-    z_b = torch.full_like(x, -inf)
-    for uy, ux in [(0, 1), (1, 0), (1, 1), (1, -1)]:
-        low_a, high_a = torch.full_like(x, -inf), torch.full_like(x, -inf)
-        low_b, high_b = torch.full_like(x, -inf), torch.full_like(x, -inf)
+        a = F.pad(amplitude, (pad, pad, pad, pad), value=0.0)
+        ap = torch.nan_to_num(a.clamp_min(0.0), nan=0.0)  # absent or <= 0: 0
+    z_b = x  # (placeholder for TorchScript)
+    for line, (uy, ux) in enumerate([(0, 1), (1, 0), (1, 1), (1, -1)]):
+        # the extremes of E over k: at p (side b) and at p - k u (side a)
+        max_b, min_b, max_a, min_a = x, x, x, x  # (placeholders for TorchScript)
         for k in range(1, reach + 1):
             oy, ox = k * uy, k * ux
-            d = (x - shifted(xp, oy, ox, pad)) / torch.sqrt(h2 + shifted(h2p, oy, ox, pad))
-            gone = torch.isnan(d)
-            d_lo = torch.where(gone, torch.full_like(d, -inf), d)
-            d_hi = torch.where(gone, torch.full_like(d, -inf), -d)
-            low_b = torch.maximum(low_b, d_lo)
-            high_b = torch.maximum(high_b, d_hi)
-            d_lo = F.pad(d_lo, (pad, pad, pad, pad), value=-inf)
-            d_hi = F.pad(d_hi, (pad, pad, pad, pad), value=-inf)
-            low_a = torch.maximum(low_a, shifted(d_hi, -oy, -ox, pad))
-            high_a = torch.maximum(high_a, shifted(d_lo, -oy, -ox, pad))
-        near_a = _along(lo_p, -uy, -ux, reach, False)
-        near_b = _along(lo_p, uy, ux, reach, False)
-        far_a = _along(hi_p, -uy, -ux, reach, True)
-        far_b = _along(hi_p, uy, ux, reach, True)
-        z_ab = _one_way(x, low_a, high_b, near_a, far_b, share)
-        z_ba = _one_way(x, low_b, high_a, near_b, far_a, share)
-        z = torch.maximum(z_ab, z_ba)
+            y0, x0 = max(0, -oy), max(0, -ox)  # E on every r with r and r + k u in the padding
+            h = xp.shape[-2] - abs(oy)
+            w = xp.shape[-1] - abs(ox)
+            s = (_win(h2p, y0, x0, h, w) + _win(h2p, y0 + oy, x0 + ox, h, w)).sqrt_()
+            e_lo = (_win(lo_p, y0, x0, h, w) - _win(lo_p, y0 + oy, x0 + ox, h, w)).div_(s)
+            # E of the other copy: the same numbers, the infinities (an absent pixel) swapped
+            e_hi = torch.nan_to_num(e_lo, nan=math.nan, posinf=-inf, neginf=inf)
+            by, bx = pad - y0, pad - x0  # p in E
+            ay, ax = by - oy, bx - ox  # p - k u in E
+            lo_b, hi_b = _win(e_lo, by, bx, rows, cols), _win(e_hi, by, bx, rows, cols)
+            lo_a, hi_a = _win(e_lo, ay, ax, rows, cols), _win(e_hi, ay, ax, rows, cols)
+            if k == 1:
+                max_b, min_b, max_a, min_a = lo_b, hi_b, hi_a, lo_a
+            elif k == 2:
+                max_b, min_b = torch.maximum(max_b, lo_b), torch.minimum(min_b, hi_b)
+                max_a, min_a = torch.maximum(max_a, hi_a), torch.minimum(min_a, lo_a)
+            else:
+                max_b.clamp_min_(lo_b)
+                min_b.clamp_max_(hi_b)
+                max_a.clamp_min_(hi_a)
+                min_a.clamp_max_(lo_a)
+        # nearer than side b by -min_b and farther than side a by -min_a, or the other way round
+        # (in place unless reach is 1: then max_b and min_a are views of the same E)
+        z_ba = max_b.clamp_max_(max_a) if reach > 1 else torch.minimum(max_b, max_a)
+        z_ab = min_a.clamp_min_(min_b).neg_()
+        near_a, near_b = _reach_extreme(lo_p, uy, ux, reach, False)
+        far_a, far_b = _reach_extreme(hi_p, uy, ux, reach, True)
+        z = _one_way(x, z_ab, near_a, far_b, share)
+        z.clamp_min_(_one_way(x, z_ba, near_b, far_a, share))
         if amplitude is not None and ap is not None:
-            bright = torch.maximum(
-                _along(ap, uy, ux, reach, True), _along(ap, -uy, -ux, reach, True)
-            )
-            mixture = amplitude <= (1.0 + tolerance) * bright
-            z = torch.where(mixture, z, torch.full_like(z, -inf))
-        z_b = torch.maximum(z_b, z)
+            bright_a, bright_b = _reach_extreme(ap, uy, ux, reach, True)
+            both = torch.maximum(bright_a, bright_b)
+            # A <= (1 + tolerance) max A_q: sign(d) + 0.5 > 0 iff d >= 0, and never 0
+            mixture = both.mul_(1.0 + tolerance).sub_(amplitude).sign_().add_(0.5)
+            z.clamp_max_(mixture.mul_(inf))
+        if line == 0:
+            z_b = z
+        else:
+            z_b.clamp_min_(z)
     return z_b
 
 
-def _along(padded: torch.Tensor, uy: int, ux: int, reach: int, largest: bool) -> torch.Tensor:
-    """The largest (``largest``) or smallest value of ``padded`` (padded by ``reach``, no NaN)
-    at ``k (uy, ux)`` from every pixel, ``k = 1 .. reach``."""
-    out = shifted(padded, uy, ux, reach)
-    for k in range(2, reach + 1):
-        q = shifted(padded, k * uy, k * ux, reach)
-        out = torch.maximum(out, q) if largest else torch.minimum(out, q)
-    return out
+def _win(t: torch.Tensor, y: int, x: int, h: int, w: int) -> torch.Tensor:
+    """The ``h`` x ``w`` window of ``t`` from row ``y``, column ``x`` (a view)."""
+    return t[:, :, y : y + h, x : x + w]
+
+
+def _reach_extreme(
+    padded: torch.Tensor, uy: int, ux: int, reach: int, largest: bool
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(side a, side b)``: the largest (``largest``) or smallest value of ``padded`` (a frame
+    padded by ``reach``, no NaN) at ``-k (uy, ux)`` and at ``k (uy, ux)`` from every pixel, ``k =
+    1 .. reach``. Both are views of one map of the extremes of ``reach`` consecutive pixels along
+    the line, built by doubling (2 passes for ``reach`` 4)."""
+    rows = padded.shape[-2] - 2 * reach
+    cols = padded.shape[-1] - 2 * reach
+    out = padded
+    width = 1
+    while width < reach:
+        step = min(width, reach - width)
+        h = out.shape[-2] - step * abs(uy)
+        w = out.shape[-1] - step * abs(ux)
+        # out'[i] = extreme of out[i] and out[i + step u] (a negative component shifts the origin)
+        first = _win(out, step if uy < 0 else 0, step if ux < 0 else 0, h, w)
+        second = _win(out, step if uy > 0 else 0, step if ux > 0 else 0, h, w)
+        out = torch.maximum(first, second) if largest else torch.minimum(first, second)
+        width += step
+    # out[i] = extreme of padded[i + o + k u], k = 0 .. reach - 1; o: the origin of out
+    oy = 0 if uy >= 0 else reach - 1
+    ox = 0 if ux >= 0 else reach - 1
+    side_a = _win(out, reach - reach * uy - oy, reach - reach * ux - ox, rows, cols)
+    side_b = _win(out, reach + uy - oy, reach + ux - ox, rows, cols)
+    return side_a, side_b
 
 
 def _one_way(
-    x: torch.Tensor,
-    lower: torch.Tensor,
-    higher: torch.Tensor,
-    near: torch.Tensor,
-    far: torch.Tensor,
-    share: float,
+    x: torch.Tensor, z: torch.Tensor, near: torch.Tensor, far: torch.Tensor, share: float
 ) -> torch.Tensor:
-    """The margin by which ``x`` is farther than one side (``lower``) and nearer than the other
-    (``higher``); -inf unless it lies ``share`` of the way from ``near`` (one side's nearest
-    depth) and from ``far`` (the other's farthest)."""
-    z = torch.minimum(lower, higher)
+    """``z`` (the margin by which ``x`` is farther than one side and nearer than the other; worked
+    on in place) where ``x`` lies ``share`` of the way from ``near`` (one side's nearest depth) and
+    from ``far`` (the other's farthest), -inf elsewhere."""
     if share > 0.0:
-        gap = share * (far - near)
-        inside = (x - near > gap) & (far - x > gap)
-        z = torch.where(inside, z, torch.full_like(z, -math.inf))
+        gap = (far - near).mul_(share)
+        # x - near > gap and far - x > gap: the smaller difference > 0 (NaN where a side is absent)
+        inside = (x - near).sub_(gap).clamp_max_((far - x).sub_(gap))
+        z = z.clamp_max_(inside.mul_(math.inf)).nan_to_num_(
+            nan=-math.inf, posinf=math.inf, neginf=-math.inf
+        )
     return z
 
 
@@ -272,12 +322,15 @@ def _flying(
     amp: torch.Tensor | None = None
     if amplitude is not None:
         amp = torch.where(valid, amplitude.to(work), torch.full_like(d, math.nan))
-    sigma = local_noise(x, facet_noise(x, amp, min_noise), local, clip)
-    z_s = _support(x, sigma, facet_fit, size)
+    pad = 4 + size // 2  # facets centred up to 4 px off the frame
+    xp = F.pad(x, (pad, pad, pad, pad), value=float("nan"))
+    v3 = window_variance(xp, pad, 3, 0)
+    sigma = local_noise(v3, facet_noise(x, amp, min_noise, residuals=v3), local, clip)
+    z_s = _support(x, sigma, window_fit(xp, pad, size, 4), facet_fit, size)
     z_b = _between(x, sigma, amp, tolerance, reach, share)
-    q = torch.minimum(z_s, z_b)
+    q = z_s.clamp_max_(z_b)  # min(z_s, z_b)
     flagged = valid & (q > threshold)
-    conf = torch.clamp((threshold + softness - q) / (2.0 * softness), 0.0, 1.0)
+    conf = q.neg_().add_(threshold + softness).div_(2.0 * softness).clamp_(0.0, 1.0)
     conf = torch.where(valid, conf, torch.zeros_like(conf))
     if action == "mark":
         return depth.clone(), conf.to(depth.dtype)

@@ -330,6 +330,7 @@ def facet_noise(
     min_noise: float = 1e-3,
     clip: float = _FACET_NOISE_CLIP,
     bias: float = _LOG_CHI2_6_BIAS,
+    residuals: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Per-pixel depth noise (standard deviation) from the law ``sigma^2 = e^c A^-gamma`` fitted
     per frame to local 3 x 3 plane-fit residuals (module docstring).
@@ -339,6 +340,8 @@ def facet_noise(
         amplitude: (B, 1, H, W) amplitude, or None (one level per frame).
         min_noise: the floor of the map, in depth units (quantised depth can have a 0 residual).
         clip, bias: the fit's trimming (log units) and de-biasing (the module's defaults).
+        residuals: the (B, 1, H, W) residual variances of the 3 x 3 plane fits of ``depth`` when
+            the caller has them (NaN where a window is not valid); computed when None.
 
     Returns:
         (B, 1, H, W) noise in depth units, ``>= min_noise``; pixels with ``A <= 0`` get the value
@@ -350,34 +353,38 @@ def facet_noise(
         >>> round(float(facet_noise(d).median()), 3)
         0.01
     """
-    v = plane_fit(depth, 3, 3)[3]
-    ok = torch.isfinite(v) & (v > 0)
+    v = plane_fit(depth, 3, 3)[3] if residuals is None else residuals
+    ok = (v > 0) & (v < math.inf)  # finite and > 0 (NaN fails both)
     lv = torch.log(torch.where(ok, v, torch.ones_like(v)))
     if amplitude is None:
         la = torch.zeros_like(v)
     else:
-        a_ok = torch.isfinite(amplitude) & (amplitude > 0)
+        a_ok = (amplitude > 0) & (amplitude < math.inf)
         ok = ok & a_ok
         la = torch.log(torch.where(a_ok, amplitude, torch.ones_like(amplitude)))
     w = ok.to(v.dtype)
     c0 = torch.zeros(v.shape[0], 1, 1, 1, dtype=v.dtype, device=v.device)
     gamma = torch.zeros_like(c0)
     dims = [1, 2, 3]
-    for _it in range(3):
+    for it in range(3):
         n = w.sum(dims, keepdim=True)
         nz = n.clamp_min(1.0)
         mx = (w * la).sum(dims, keepdim=True) / nz
         my = (w * lv).sum(dims, keepdim=True) / nz
         if amplitude is not None:
-            cov = (w * (la - mx) * (lv - my)).sum(dims, keepdim=True)
-            var = (w * (la - mx) * (la - mx)).sum(dims, keepdim=True)
+            dla = la - mx
+            wdla = w * dla
+            cov = (wdla * (lv - my)).sum(dims, keepdim=True)
+            var = (wdla * dla).sum(dims, keepdim=True)
             gamma = torch.clamp(-cov / var.clamp_min(1e-12), 0.0, 2.0)
         c0 = torch.where(n > 0, my + gamma * mx, torch.full_like(c0, -1e30))
-        keep = (lv - (c0 - gamma * la)).abs() < clip
-        w = (ok & keep).to(v.dtype)
+        if it < 2:  # the weights of the next round: |lv - (c0 - gamma la)| < clip
+            keep = (gamma * la).neg_().add_(c0).neg_().add_(lv).abs_() < clip
+            w = (ok & keep).to(v.dtype)
     if amplitude is None:
         la_px = torch.zeros_like(depth)
     else:
         la_px = torch.log(torch.clamp(torch.nan_to_num(amplitude, nan=1.0), min=1e-6))
-    sigma = torch.exp(0.5 * (c0 - gamma * la_px + bias))
-    return torch.clamp(sigma, min=min_noise)
+    # exp(0.5 (c0 - gamma la + bias)), worked on in place
+    sigma = (gamma * la_px).neg_().add_(c0).add_(bias).mul_(0.5).exp_()
+    return sigma.clamp_(min=min_noise)
