@@ -101,6 +101,8 @@ class ComplexPattern:
         focal_length_px: the frames' depth is ``Z`` along the optical axis of a pinhole with
             this focal length (pixels); None: radial distance
             (:class:`~tof_fpn_torch.runtime.ComplexPatternCorrection`).
+        amplitude_floor: pixels darker than this are corrected as at this amplitude (None: no
+            floor).
     """
 
     column_offset_re: torch.Tensor
@@ -117,6 +119,7 @@ class ComplexPattern:
     shrink_factor: float = 0.0
     height: int = -1
     focal_length_px: float | None = None
+    amplitude_floor: float | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -134,6 +137,7 @@ class ComplexPattern:
             self.row_offset_im,
             wrap=wrap,
             focal_length_px=self.focal_length_px,
+            amplitude_floor=self.amplitude_floor,
         )
 
     def to_arrays(self) -> tuple[dict[str, torch.Tensor], dict]:
@@ -154,6 +158,7 @@ class ComplexPattern:
             "shrink_factor": float(self.shrink_factor),
             "has_rows": has_rows,
             "focal_length_px": self.focal_length_px,
+            "amplitude_floor": self.amplitude_floor,
         }
         zeros = torch.zeros(h, dtype=torch.float64)
         arrays = {
@@ -185,6 +190,7 @@ class ComplexPattern:
             shrink_factor=meta["shrink_factor"],
             height=meta["height"],
             focal_length_px=meta.get("focal_length_px"),
+            amplitude_floor=meta.get("amplitude_floor"),
         )
 
 

@@ -54,6 +54,9 @@ class ComplexPatternCorrection(Stage):
         focal_length_px: the depth is ``Z`` along the optical axis of a pinhole camera with this
             focal length (pixels, finite > 0; principal point at the frame centre); None: the
             depth is the radial distance.
+        amplitude_floor: pixels darker than this (amplitude units, finite > 0) are corrected as
+            if they had this amplitude (the model an offset learned with a floored ``1 / A`` was
+            fitted with; a dark pixel's phase is not turned further); None: no floor.
 
     Shape:
         - depth, amplitude: (B, C, H, W) float with the calibrated W (and H when rows are
@@ -76,6 +79,7 @@ class ComplexPatternCorrection(Stage):
     scale: float
     wrap: bool
     focal_length_px: float
+    amplitude_floor: float
 
     def __init__(
         self,
@@ -87,6 +91,7 @@ class ComplexPatternCorrection(Stage):
         wrap: bool = True,
         height: int | None = None,
         focal_length_px: float | None = None,
+        amplitude_floor: float | None = None,
     ) -> None:
         super().__init__()
         f = modulation_frequency_hz
@@ -104,6 +109,11 @@ class ComplexPatternCorrection(Stage):
             raise ValueError(
                 f"focal_length_px must be a finite number > 0 (pixels) or None, got {fl!r}"
             )
+        fa = amplitude_floor
+        if fa is not None and (
+            isinstance(fa, bool) or not isinstance(fa, (int, float)) or not 0 < fa < math.inf
+        ):
+            raise ValueError(f"amplitude_floor must be a finite number > 0 or None, got {fa!r}")
         h = -1 if height is None else int(height)
         if height is not None and h < 1:
             raise ValueError(f"height must be an int >= 1, got {height!r}")
@@ -119,6 +129,7 @@ class ComplexPatternCorrection(Stage):
         self.scale = metres_per_radian(float(f))
         self.wrap = bool(wrap)
         self.focal_length_px = -1.0 if fl is None else float(fl)  # -1: radial distance
+        self.amplitude_floor = -1.0 if fa is None else float(fa)  # -1: none
         self.register_buffer("offset", offset)  # (1, 2, 1 or H, W) float64
 
     def extra_repr(self) -> str:
@@ -126,7 +137,8 @@ class ComplexPatternCorrection(Stage):
         return (
             f"height={h}, width={self.width}, offset_rows={self.offset.shape[2]}, "
             f"modulation_frequency_hz={self.modulation_frequency_hz:g}, wrap={self.wrap}, "
-            f"focal_length_px={self.focal_length_px if self.focal_length_px > 0 else None}"
+            f"focal_length_px={self.focal_length_px if self.focal_length_px > 0 else None}, "
+            f"amplitude_floor={self.amplitude_floor if self.amplitude_floor > 0 else None}"
         )
 
     def _run(
@@ -156,6 +168,8 @@ class ComplexPatternCorrection(Stage):
         if self.focal_length_px > 0:
             ray = ray_norm(h, w, self.focal_length_px, work, x.device)
         r = x * ray  # the radial distance
+        if self.amplitude_floor > 0:
+            amp = amp.clamp_min(self.amplitude_floor)
         z = phasor(torch.where(valid, r, zero), torch.where(valid, amp, zero), self.scale)
         zc = z - self.offset.to(work)
         y = depth_from_phase_change(r, z, zc, self.scale, self.wrap) / ray
