@@ -87,8 +87,8 @@ def _fpn_filter(
     if not tracing and mask is None:
         rng = valid_range(work, fast)  # one min/max: the clean frame's shortcut
     valid: torch.Tensor | None = None
-    if rng is None:
-        valid = valid_mask(work, mask=mask)  # else all valid, or the invalid ones are the +0.0
+    if rng is None and (mask is not None or not fast):
+        valid = valid_mask(work, mask=mask)  # else the chunks find the invalid pixels themselves
     gains = (0.0, 0.0) if tracing else tap_gains(taps)
     y = work
     for i, d in enumerate(dims):
@@ -104,8 +104,9 @@ def _fpn_filter(
         if fast:
             top = 0.0 if r is None else r[1]
             v2 = None if valid is None else _lines(valid, d)
+            lines = _per_image(shape, d)
             y2 = holed_lines(
-                _lines(y, d), v2, taps, border, taps_ops, gains, top, _per_image(shape, d)
+                _lines(y, d), v2, taps, border, taps_ops, gains, top, lines, r is not None
             )
         else:
             vm = valid if valid is not None else valid_mask(y)
