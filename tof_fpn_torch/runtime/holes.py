@@ -122,8 +122,9 @@ def tap_gains(taps: torch.Tensor) -> tuple[float, float]:
 
 
 def _chunk_samples() -> int:
-    """Samples per chunk of :func:`holed_lines` (a function: TorchScript reads no globals): the
-    chunk's depth and indicator, padded, and their filtered copies stay in a core's L2 cache."""
+    """Samples per chunk and thread of :func:`holed_lines` (a function: TorchScript reads no
+    globals): a thread's share of the chunk's depth and indicator, padded, and of their filtered
+    copies stays in its core's L2 cache, and every operation on a chunk is one parallel region."""
     return 1 << 17
 
 
@@ -166,7 +167,10 @@ def holed_lines(
     q_out, p_in = _phases(), _in_phases()
     direct = x2.dtype == torch.float32 and x2.device.type == "cpu" and length > 1
     wp = w + left + right if direct else w  # a padded line in the buffer
-    rows = min(r, max(1, _chunk_samples() // wp))
+    per = _chunk_samples()
+    if not torch.jit.is_scripting():  # each thread works on its share of the chunk
+        per *= max(1, torch.get_num_threads())
+    rows = min(r, max(1, per // wp))
     seg = ((rows * wp + p_in - 1) // p_in) * p_in
     direct = direct and 2 * seg >= 2 * q_out
     if direct and len(ops) == 0:
