@@ -10,10 +10,11 @@ sample off the input grid (:attr:`FPNFilter.delay`).
 Invalid pixels (:func:`~tof_fpn_torch.runtime.valid_mask`) and isolated outliers (a valid pixel
 more than 3 times as far, or less than a third as far, as each valid neighbour along the filtering
 axis) are not used as data: the weight of the taps that fall on them goes to the output pixel
-itself, and they get their input values back (invalid stays invalid, bit for bit). A valid output
-moves by at most ``sum_{k != c} |h_k|`` times the largest difference to a usable depth within the
-filter's support; the rule and this bound are in :mod:`.holes`. With every pixel valid and the
-depths within a factor 3 (no pixel can be an outlier), the filter is the plain FIR.
+itself, and they get their input values back (invalid stays invalid, bit for bit, NaN, 0 and
+other codes alike; a signalling NaN comes back quiet). A valid output moves by at most
+``sum_{k != c} |h_k|`` times the largest difference to a usable depth within the filter's support;
+the rule and this bound are in :mod:`.holes`. With every pixel valid and the depths within a
+factor 3 (no pixel can be an outlier), the filter is the plain FIR.
 """
 
 # no `from __future__ import annotations`: TorchScript reads the class-level attribute types below

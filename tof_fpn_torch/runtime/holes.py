@@ -19,11 +19,13 @@ line (a row for ``dim=-1``, a column for ``dim=-2``):
        y_n = sum_{k usable} h_k x_{n-k} + (sum_{k not usable} h_k) x_n,
 
    i.e. the weight of the taps that fall on holes and outliers goes to the pixel itself. It is
-   computed as two FIRs with the fast kernel, of the zero-filled depth ``x0`` and of the
-   indicator ``u`` of the pixels that are not usable: ``y = h * x0 + (h * u) x0``. The borders pad
-   ``u`` like the depth (``zeros``: outside counts as a usable 0, as without holes).
-3. Every pixel that is not usable gets its input back (invalid ones bit for bit, outliers
-   unchanged); a usable pixel whose output would not be a valid depth keeps its input too.
+   computed as two FIRs, of the zero-filled depth ``x0`` and of the indicator ``u`` of the
+   pixels that are not usable: ``y = h * x0 + (h * u) x0``. The borders pad ``u`` like the depth
+   (``zeros``: outside counts as a usable 0, as without holes). NaN, 0 and the other codes of
+   invalid pixels take the same path: each chunk of lines replaces them by 0 once.
+3. Every pixel that is not usable gets its input back (invalid ones bit for bit, except that a
+   signalling NaN comes back as the quiet NaN of the same payload; outliers unchanged); a usable
+   pixel whose output would not be a valid depth keeps its input too.
 
 **The bound.** With ``c`` the pixel's own tap (index ``L // 2``) and ``H(0) = sum h``,
 ``y_n - H(0) x_n = sum_{k usable} h_k (x_{n-k} - x_n)``, so
@@ -148,16 +150,17 @@ def holed_lines(
 
     ``valid2``: the caller's mask joined with the validity rule, or None: then ``zeros`` says the
     invalid values are all ``+0.0`` (``top``: the largest depth), else they may be any code (NaN,
-    +-inf, <= 0), found per chunk by one replacement (NaN and infinities by 0, then negatives by 0:
-    no NaN arithmetic after it). ``lines``: lines per image (the outliers' neighbourhood).
+    +-inf, <= 0), replaced per chunk by one ``nan_to_num`` (no NaN arithmetic after it; negative
+    codes, ``-0.0`` and the infinities, seen by one min / max, are cleared too and take an exact
+    bitwise write-back). ``lines``: lines per image (the outliers' neighbourhood).
 
     Per chunk, the zero-filled depth ``x0`` and the indicator ``u`` of the pixels that are not
     usable are written once into one buffer; on CPU float32 each line is written there with its
-    border padding around it (the padding is two small gathers), so one polyphase convolution of
-    the whole buffer gives both FIRs with no row border to redo. Then ``y = h * x0 + (h * u) x0``
-    and the write-back: the unusable pixels get their input back bit for bit. Outliers are searched
-    only when a chunk's usable depths span more than a factor 3 (elsewhere there can be none), then
-    over all lines at once (they look across lines).
+    border padding around it (slices of it), so one polyphase convolution of the whole buffer gives
+    both FIRs with no row border to redo. Then ``y = h * x0 + (h * u) x0`` and the write-back:
+    ``lerp`` to the input where ``u`` is 1 (exact for finite codes; a NaN keeps its sign and
+    payload). Outliers are searched only when a chunk's usable depths span more than a factor 3
+    (elsewhere there can be none), then over all lines at once (they look across lines).
     """
     r, w = x2.shape[0], x2.shape[1]
     out = torch.empty_like(x2)
