@@ -450,3 +450,23 @@ def test_nan_payloads_come_back_and_a_signalling_nan_stays_nan():
     x[0, 0, 11, 30] = torch.tensor([0x7F812345], dtype=torch.int32).view(torch.float32)
     with torch.inference_mode():
         assert bool(torch.isnan(f(x)[0, 0, 11, 30]))
+
+
+@pytest.mark.parametrize("length", [1, 2, 3, 6])
+@pytest.mark.parametrize("border", list(SCIPY_MODE))
+def test_tiny_frames_and_short_taps_equal_the_branch_free_path(monkeypatch, length, border):
+    """Frames of 1 x 1 to 9 x 7 pixels (smaller than the kernel's smallest input: the other FIR
+    kernel) and 1 to 6 taps (odd and even), NaN and 0 holes and other codes, both axes."""
+    taps = torch.linspace(1.0, 2.0, length) / torch.linspace(1.0, 2.0, length).sum()
+    f = FPNFilter(taps, border=border, allow_shift=True, dim=(-2, -1))
+    for h, w in ((1, 1), (1, 7), (9, 2), (9, 7)):
+        for x in _holed_frames((2, 1, 9, w), seed=w)[:6]:
+            x = x[:, :, :h].contiguous()
+            with torch.inference_mode():
+                fast = f(x)
+                monkeypatch.setattr(fpn_filter_module, "_tracing", lambda: True)
+                exact = f(x)
+                monkeypatch.undo()
+            torch.testing.assert_close(fast, exact, rtol=0, atol=2e-6, equal_nan=True)
+            invalid = ~valid_mask(x)
+            assert torch.equal(fast[invalid].view(torch.int32), x[invalid].view(torch.int32))

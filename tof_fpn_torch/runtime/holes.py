@@ -169,13 +169,13 @@ def holed_lines(
     left = length - 1 - right
     q_out, p_in = _phases(), _in_phases()
     direct = x2.dtype == torch.float32 and x2.device.type == "cpu" and length > 1
+    direct = direct and r * (w + left + right) >= 2 * q_out  # the kernel's smallest input
     wp = w + left + right if direct else w  # a padded line in the buffer
     per = _chunk_samples()
     if not torch.jit.is_scripting():  # each thread works on its share of the chunk
         per *= max(1, torch.get_num_threads())
     rows = min(r, max(1, per // wp))
     seg = ((rows * wp + p_in - 1) // p_in) * p_in
-    direct = direct and 2 * seg >= 2 * q_out
     if direct and len(ops) == 0:
         ops = fir_operators(taps, border)
     # one buffer per call, [x0 | u], and one for the chunk's temporaries
