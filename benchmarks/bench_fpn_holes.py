@@ -2,14 +2,16 @@
 convolution, side by side in one run.
 
 For each filter order, on depth-like float32 frames (a slanted curved surface, 1 cm noise, 5 mm
-column stripes, as in ``bench_fpn_filter.py``) with 0 %, 1 % and 10 % of the pixels set to 0
-(invalid) at random (seeded):
+column stripes, as in ``bench_fpn_filter.py``) with 0 %, 1 % and 10 % of the pixels invalid at
+random (seeded), marked as 0 and, the same pixels, as NaN (how ROS ``32FC1``, Open3D and float
+pipelines mark them):
 
-- ``ours_<p>%``: ``FPNFilter(x)`` as a user calls it (checks, validity, fill, filter, write-back);
+- ``ours_<p>%`` (0 holes), ``ours_nan_<p>%`` (NaN holes): ``FPNFilter(x)`` as a user calls it
+  (checks, validity, filter, write-back);
 - ``cv2``: ``cv2.filter2D`` with the same taps as a 1 x L kernel, ``BORDER_REFLECT_101`` (our
   ``reflect``), on the hole-free frames;
 - ``cv2_nc_<p>%``: a normalised convolution from two ``cv2.filter2D`` calls per frame on the holed
-  frames: the zero-filled frame and the validity mask are filtered, then divided.
+  frames (0 holes): the zero-filled frame and the validity mask are filtered, then divided.
 
 Every round times every method once, in the same order; the ratios are medians of per-round ratios
 (a load spike from other processes hits both sides of a ratio), the times medians and minima.
@@ -50,11 +52,11 @@ def frames(batch: int, height: int, width: int, seed: int) -> torch.Tensor:
     return x.contiguous()
 
 
-def with_holes(x: torch.Tensor, fraction: float, seed: int) -> torch.Tensor:
+def with_holes(x: torch.Tensor, fraction: float, seed: int, code: float = 0.0) -> torch.Tensor:
     out = x.clone()
     n = int(round(fraction * x.numel()))
     gen = torch.Generator().manual_seed(seed)
-    out.view(-1)[torch.randperm(x.numel(), generator=gen)[:n]] = 0.0
+    out.view(-1)[torch.randperm(x.numel(), generator=gen)[:n]] = code
     return out
 
 
@@ -69,19 +71,21 @@ def bench_order(args, order: int, rho: float) -> dict:
         return cv2.filter2D(a, -1, kernel, anchor=anchor, borderType=cv2.BORDER_REFLECT_101)
 
     x = frames(args.batch, args.height, args.width, args.seed)
-    inputs = {p: with_holes(x, p, args.seed + 1) for p in FRACTIONS}
+    inputs = {f"{p:.0%}": with_holes(x, p, args.seed + 1) for p in FRACTIONS}
+    for p in FRACTIONS[1:]:
+        inputs[f"nan_{p:.0%}"] = with_holes(x, p, args.seed + 1, float("nan"))
     methods = {}
-    for p, xp in inputs.items():
+    for name, xp in inputs.items():
 
         def ours(xp=xp):
             with torch.inference_mode():
                 return f(xp)
 
-        methods[f"ours_{p:.0%}"] = ours
+        methods[f"ours_{name}"] = ours
     xn = x.numpy()
     methods["cv2"] = lambda: [filt2d(xn[i, 0]) for i in range(args.batch)]
     for p in FRACTIONS[1:]:
-        hn = inputs[p].numpy()
+        hn = inputs[f"{p:.0%}"].numpy()
 
         def normalised(hn=hn):
             out = []
@@ -94,8 +98,13 @@ def bench_order(args, order: int, rho: float) -> dict:
 
         methods[f"cv2_nc_{p:.0%}"] = normalised
 
-    # correctness on the hole-free frames: the same numbers as OpenCV
+    # correctness on the hole-free frames: the same numbers as OpenCV; NaN and 0 holes: the same
     err = float(np.abs(methods["ours_0%"]().numpy()[:, 0] - np.stack(methods["cv2"]())).max())
+    for p in FRACTIONS[1:]:
+        a, b = methods[f"ours_{p:.0%}"](), methods[f"ours_nan_{p:.0%}"]()
+        same = torch.equal(a, torch.where(torch.isnan(b), torch.zeros_like(b), b))
+        if not same:
+            raise RuntimeError(f"NaN and 0 holes ({p:.0%}) gave different outputs")
     times: dict[str, list[float]] = {k: [] for k in methods}
     for fn in methods.values():  # warm-up
         fn()
@@ -118,6 +127,9 @@ def bench_order(args, order: int, rho: float) -> dict:
         "min_ms": {k: 1e3 * min(v) for k, v in times.items()},
         "hole_free_x_faster_than_cv2": ratio("ours_0%", "cv2"),
         "own_time_with_holes_x_hole_free": {h: ratio("ours_0%", f"ours_{h}") for h in holes},
+        "own_time_with_nan_holes_x_hole_free": {
+            h: ratio("ours_0%", f"ours_nan_{h}") for h in holes
+        },
         "x_faster_than_cv2_normalised_convolution": {
             h: ratio(f"ours_{h}", f"cv2_nc_{h}") for h in holes
         },
@@ -146,6 +158,7 @@ def main() -> None:
         "config": {
             **{k: v for k, v in vars(args).items() if k != "json"},
             "dtype": "float32",
+            "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),
             "torch": torch.__version__,
             "cv2": cv2.__version__,
         },
@@ -161,7 +174,11 @@ def main() -> None:
         print(f"  hole-free: {r['hole_free_x_faster_than_cv2']:.2f}x faster than cv2.filter2D")
         for h, v in r["own_time_with_holes_x_hole_free"].items():
             nc = r["x_faster_than_cv2_normalised_convolution"][h]
-            print(f"  {h} invalid: {v:.2f}x its hole-free time, {nc:.2f}x faster than cv2 NC")
+            vn = r["own_time_with_nan_holes_x_hole_free"][h]
+            print(
+                f"  {h} invalid: {v:.2f}x (0) / {vn:.2f}x (NaN) its hole-free time, "
+                f"{nc:.2f}x faster than cv2 NC"
+            )
         print(f"  max |ours - cv2| hole-free: {r['max_abs_diff_hole_free_vs_cv2']:.2e}")
     print("1-min load average before/after:", out["loadavg_1min_before_after"])
     if args.json:

@@ -272,8 +272,8 @@ def test_invalid_pixels_do_not_smear_and_stay_invalid(design20):
     assert err.max() < 0.05 * naive_err.max()
     assert err.max() < 0.02  # metres: the filled values are interpolated from valid neighbours
     far = torch.ones_like(x, dtype=torch.bool)
-    far[0, 0, [5, 10, 20, 25]] = False
-    torch.testing.assert_close(y[far], ref[far], rtol=0, atol=1e-6)
+    far[0, 0, [5, 10, 20, 25]] = False  # float32 rounding: the hole path sums in another order
+    torch.testing.assert_close(y[far], ref[far], rtol=0, atol=2e-6)
 
 
 @pytest.mark.parametrize(

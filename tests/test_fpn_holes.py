@@ -298,3 +298,175 @@ def test_a_valid_pixel_never_comes_out_invalid(border):
     assert bool(valid_mask(y)[valid].all()) and torch.equal(y[~valid], x[~valid])
     ref = reference(x, f.taps.numpy(), (-1,), border)
     np.testing.assert_allclose(y.double().numpy(), ref, rtol=0, atol=2e-5)
+
+
+# --- the chunked inference path against the previous implementation ----------------------------
+
+
+def _previous_holed_lines(x2, valid2, taps, border, ops, gains, top, lines=0, zeros=True):
+    """The chunked inference path as it was before the padded-buffer kernel, kept as a reference:
+    per chunk the zero-filled depth and the indicator as one (2 R, W) block through the FIR with
+    its row borders redone, the validity from a mask computed for the whole frame (NaN frames)."""
+    from tof_fpn_torch.runtime.fir import fir_last
+
+    if valid2 is None and not zeros:
+        valid2 = valid_mask(x2)
+    r, w = x2.shape
+    out = torch.empty_like(x2)
+    rows = max(1, 4096 // w)
+    odd_all = None
+    for r0 in range(0, r, rows):
+        r1 = min(r, r0 + rows)
+        xc = x2[r0:r1]
+        both = torch.empty((2, r1 - r0, w), dtype=x2.dtype)
+        x0, u = both[0], both[1]
+        if valid2 is not None:
+            torch.where(valid2[r0:r1], xc, torch.zeros_like(xc), out=x0)
+            u.copy_(~valid2[r0:r1])
+            peak = float(x0.amax())
+        else:
+            x0.copy_(xc)
+            torch.le(xc, 0.0, out=u)
+            peak = top
+        lo, hi = torch.aminmax(torch.addcmul(x0, u, torch.full_like(x0[:1, :1], peak)))
+        if not bool(hi < RATIO * lo):
+            if odd_all is None:
+                vall = (x2 > 0) if valid2 is None else valid2
+                x0all = torch.where(vall, x2, torch.zeros_like(x2))
+                odd_all = holes_module.isolated_outliers(x0all, vall.to(x2.dtype), lines)
+            odd = odd_all[r0:r1]
+            u.masked_fill_(odd, 1.0)
+            x0.masked_fill_(odd, 0.0)
+            lo, hi = torch.aminmax(torch.addcmul(x0, u, torch.full_like(x0[:1, :1], peak)))
+        y2 = fir_last(both.view(-1, w), taps, border, ops, True)
+        y = y2[: r1 - r0].addcmul_(y2[r1 - r0 :], x0)
+        oc = out[r0:r1]
+        torch.where(u > 0, xc, y, out=oc)
+        if not holes_module.certified(float(lo), float(hi), gains, border):
+            oc.copy_(torch.where((u < 1) & ~valid_mask(oc), xc, oc))
+    return out
+
+
+def _holed_frames(shape, seed):
+    """Depth 1.5-3.5 m with 1 % and 10 % holes as 0 and as NaN, holes in the first and last
+    columns, a row with no valid pixel (0 in one image, NaN in the other), a spike next to a hole
+    (an outlier); one frame with other codes among the NaN (-0.0, -1, +-inf, 0) and one whose
+    depths span more than a factor 3 (the outlier search)."""
+    g = torch.Generator().manual_seed(seed)
+    b, c, h, w = shape
+    yy = torch.linspace(0, 1, h).view(1, 1, -1, 1)
+    xx = torch.linspace(0, 1, w).view(1, 1, 1, -1)
+    base = 1.5 + 1.0 * yy + 0.5 * torch.sin(4.0 * xx + torch.rand(b, 1, 1, 1, generator=g))
+    base = base + 0.01 * torch.randn(shape, generator=g)
+    frames = []
+    for p in (0.01, 0.1):
+        x = base.clone()
+        holes = torch.rand(shape, generator=g) < p
+        holes[..., 3, 0] = holes[..., 4, -1] = True
+        x[holes] = 0.0
+        x[0, 0, 5] = 0.0  # a row without a valid pixel
+        x[-1, 0, 6, w // 2 - 1], x[-1, 0, 6, w // 2] = 0.0, 20.0  # a spike next to a hole
+        frames.append(x)
+        nan = torch.where(x == 0, torch.full_like(x, math.nan), x)
+        nan[-1, 0, 5] = math.nan
+        frames.append(nan)
+    mixed = frames[-1].clone()  # other codes among the NaN: -0.0, -1, +-inf, 0
+    codes = torch.tensor([-0.0, -1.0, math.inf, -math.inf, 0.0])
+    idx = torch.nonzero(torch.isnan(mixed.view(-1))).view(-1)[::3][:50]
+    mixed.view(-1)[idx] = codes.repeat(10)[: idx.numel()]
+    frames.append(mixed)
+    wide = base.clone()
+    wide[..., : w // 3] *= 0.2  # 0.3-0.7 m beside 1.5-3.5 m
+    wide[torch.rand(shape, generator=g) < 0.05] = math.nan
+    frames.append(wide)
+    return frames
+
+
+@pytest.mark.parametrize("order", [20, 41])
+@pytest.mark.parametrize("border", list(SCIPY_MODE))
+@pytest.mark.parametrize("width", [5, 30, 77, 512])
+def test_chunks_equal_the_previous_implementation(monkeypatch, order, border, width):
+    """NaN and 0 holes, several chunks per call (the last one shorter), lines narrower than the
+    filter (the padding gathered) and wider: the same output as before to float32 rounding, the
+    invalid pixels bit for bit, along either axis."""
+    f = filter_from_design(order, 0.14 if order == 20 else 0.12, border=border, dim=(-2, -1))
+    monkeypatch.setattr(holes_module, "_chunk_samples", lambda: 3000)
+    frames = _holed_frames((2, 1, 48, width), seed=order + width)
+    for x in frames:
+        with torch.inference_mode():
+            new = f(x)
+            monkeypatch.setattr(fpn_filter_module, "holed_lines", _previous_holed_lines)
+            old = f(x)
+            monkeypatch.undo()
+            monkeypatch.setattr(holes_module, "_chunk_samples", lambda: 3000)
+        scale = float(torch.nan_to_num(x, 0.0).abs().max())
+        torch.testing.assert_close(new, old, rtol=0, atol=8e-7 * scale, equal_nan=True)
+        invalid = ~valid_mask(x)
+        assert torch.equal(new[invalid].view(torch.int32), x[invalid].view(torch.int32))
+        assert bool(valid_mask(new)[~invalid].all())
+
+
+@pytest.mark.parametrize("border", list(SCIPY_MODE))
+def test_nan_and_zero_holes_match_numpy_reference(border):
+    """The per-pixel NumPy loop on frames with holes as 0 and as NaN (edges, an all-invalid
+    row, a spike next to a hole), filtered along the rows: NaN and 0 give the same valid pixels."""
+    f = filter_from_design(20, 0.14, border=border)
+    zero = _holed_frames((2, 1, 12, 64), seed=4)[2]
+    nan = torch.where(zero == 0, torch.full_like(zero, math.nan), zero)
+    with torch.inference_mode():
+        yz, yn = f(zero), f(nan)
+    for x, y in ((zero, yz), (nan, yn)):
+        ref = reference(x, f.taps.numpy(), (-1,), border)
+        np.testing.assert_allclose(y.double().numpy(), ref, rtol=0, atol=2e-5, equal_nan=True)
+    valid = valid_mask(zero)
+    assert torch.equal(yz[valid], yn[valid]) and bool(torch.isnan(yn[~valid]).all())
+    assert torch.equal(yz[~valid], zero[~valid])
+
+
+def test_torchscript_equals_eager_with_holes():
+    """NaN, 0 and mixed codes through a scripted module (its write-back without bit views)."""
+    f = filter_from_design(41, 0.12, dim=(-2, -1))
+    scripted = torch.jit.script(f)
+    codes = _depth((2, 1, 40, 77), seed=9)
+    for x in [*_holed_frames((2, 1, 40, 77), seed=8), codes]:
+        with torch.inference_mode():
+            eager, script = f(x), scripted(x)
+        torch.testing.assert_close(script, eager, rtol=0, atol=2e-6, equal_nan=True)
+        invalid = ~valid_mask(x)
+        assert torch.equal(script[invalid].view(torch.int32), x[invalid].view(torch.int32))
+
+
+def test_nan_payloads_come_back_and_a_signalling_nan_stays_nan():
+    """Quiet NaNs keep sign and payload (the other codes: the frames above); a signalling NaN
+    comes back as a (quiet) NaN."""
+    f = filter_from_design(20, 0.14)
+    x = _holed_frames((1, 1, 30, 64), seed=2)[1]  # NaN holes
+    payloads = torch.tensor([0x7FC12345, -0x3FEDCBA], dtype=torch.int32).view(torch.float32)
+    x[0, 0, 7, 3:5] = payloads
+    with torch.inference_mode():
+        y = f(x)
+    invalid = ~valid_mask(x)
+    assert torch.equal(y[invalid].view(torch.int32), x[invalid].view(torch.int32))
+    x[0, 0, 11, 30] = torch.tensor([0x7F812345], dtype=torch.int32).view(torch.float32)
+    with torch.inference_mode():
+        assert bool(torch.isnan(f(x)[0, 0, 11, 30]))
+
+
+@pytest.mark.parametrize("length", [1, 2, 3, 6])
+@pytest.mark.parametrize("border", list(SCIPY_MODE))
+def test_tiny_frames_and_short_taps_equal_the_branch_free_path(monkeypatch, length, border):
+    """Frames of 1 x 1 to 9 x 7 pixels (smaller than the kernel's smallest input: the other FIR
+    kernel) and 1 to 6 taps (odd and even), NaN and 0 holes and other codes, both axes."""
+    taps = torch.linspace(1.0, 2.0, length) / torch.linspace(1.0, 2.0, length).sum()
+    f = FPNFilter(taps, border=border, allow_shift=True, dim=(-2, -1))
+    for h, w in ((1, 1), (1, 7), (9, 2), (9, 7)):
+        for x in _holed_frames((2, 1, 9, w), seed=w)[:6]:
+            x = x[:, :, :h].contiguous()
+            with torch.inference_mode():
+                fast = f(x)
+                monkeypatch.setattr(fpn_filter_module, "_tracing", lambda: True)
+                exact = f(x)
+                monkeypatch.undo()
+            torch.testing.assert_close(fast, exact, rtol=0, atol=2e-6, equal_nan=True)
+            invalid = ~valid_mask(x)
+            assert torch.equal(fast[invalid].view(torch.int32), x[invalid].view(torch.int32))

@@ -10,10 +10,11 @@ sample off the input grid (:attr:`FPNFilter.delay`).
 Invalid pixels (:func:`~tof_fpn_torch.runtime.valid_mask`) and isolated outliers (a valid pixel
 more than 3 times as far, or less than a third as far, as each valid neighbour along the filtering
 axis) are not used as data: the weight of the taps that fall on them goes to the output pixel
-itself, and they get their input values back (invalid stays invalid, bit for bit). A valid output
-moves by at most ``sum_{k != c} |h_k|`` times the largest difference to a usable depth within the
-filter's support; the rule and this bound are in :mod:`.holes`. With every pixel valid and the
-depths within a factor 3 (no pixel can be an outlier), the filter is the plain FIR.
+itself, and they get their input values back (invalid stays invalid, bit for bit, NaN, 0 and
+other codes alike; a signalling NaN comes back quiet). A valid output moves by at most
+``sum_{k != c} |h_k|`` times the largest difference to a usable depth within the filter's support;
+the rule and this bound are in :mod:`.holes`. With every pixel valid and the depths within a
+factor 3 (no pixel can be an outlier), the filter is the plain FIR.
 """
 
 # no `from __future__ import annotations`: TorchScript reads the class-level attribute types below
@@ -87,8 +88,8 @@ def _fpn_filter(
     if not tracing and mask is None:
         rng = valid_range(work, fast)  # one min/max: the clean frame's shortcut
     valid: torch.Tensor | None = None
-    if rng is None:
-        valid = valid_mask(work, mask=mask)  # else all valid, or the invalid ones are the +0.0
+    if rng is None and (mask is not None or not fast):
+        valid = valid_mask(work, mask=mask)  # else the chunks find the invalid pixels themselves
     gains = (0.0, 0.0) if tracing else tap_gains(taps)
     y = work
     for i, d in enumerate(dims):
@@ -104,8 +105,9 @@ def _fpn_filter(
         if fast:
             top = 0.0 if r is None else r[1]
             v2 = None if valid is None else _lines(valid, d)
+            lines = _per_image(shape, d)
             y2 = holed_lines(
-                _lines(y, d), v2, taps, border, taps_ops, gains, top, _per_image(shape, d)
+                _lines(y, d), v2, taps, border, taps_ops, gains, top, lines, r is not None
             )
         else:
             vm = valid if valid is not None else valid_mask(y)
