@@ -216,7 +216,7 @@ def _rays(h, w, pitch_deg=0.0, oversample=1, shift=(0.0, 0.0)):
     uu, vv = np.meshgrid(u, v)
     d = np.stack([uu / fx, -vv / fx, np.ones_like(uu)], axis=-1)
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    a = math.radians(pitch_deg)
+    a = -math.radians(pitch_deg)  # pitch < 0: looking down
     rot = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
     return d @ rot.T
 
@@ -351,7 +351,7 @@ def scene_corridor(rng):
 
 
 def scene_tabletop(rng):
-    """Camera pitched down 25-35 deg onto a table 0.9-1.2 m below... objects; a wall behind."""
+    """Camera pitched down 25-35 deg onto a table 0.7-0.9 m below with objects; a wall behind."""
     pitch = -rng.uniform(25, 35)
     table = -rng.uniform(0.7, 0.9)
     depth = rng.uniform(2.2, 3.0)
@@ -409,8 +409,8 @@ def scene_wall_target(rng):
 
 
 def scene_objects_field(rng):
-    """Spheres and boxes at 0.8-4 m in front of a far wall (5-5.8 m), floor below."""
-    depth = rng.uniform(5.0, 5.6)
+    """Spheres and boxes at 0.8-4 m in front of a far wall (4.8-5.2 m), floor below."""
+    depth = rng.uniform(4.8, 5.2)
     floor = -rng.uniform(1.1, 1.3)
     prims = _room_box(
         rng,
@@ -662,6 +662,17 @@ def sat_log_knee(ctx, rng):
     )
 
 
+def noise_rad(ctx):
+    """Per-pixel std of the T-frame mean phase (rad) of the effect-free camera, (H, W)."""
+    return ctx.noise_mean_m / M_PER_RAD
+
+
+def dn_for_visibility(ctx, v, factor):
+    """The per-sample DN rms s of a fixed read-out offset whose phase error (rms ``factor * s /
+    A`` at a pixel of amplitude A) is v times the temporal-mean noise at the median pixel."""
+    return float(v / np.median(factor / (ctx.amp0_dn * noise_rad(ctx))))
+
+
 def _complex_offset_taps(z):
     """Per-sample DN offsets o_k whose first DFT bin is the complex offset z (o_k = Re(z e^-i th_k)/2)."""
     return np.real(z[..., None, :, :] * np.exp(-1j * THETA)[:, None, None]) / 2
@@ -669,42 +680,54 @@ def _complex_offset_taps(z):
 
 def fpn_column_adc_offsets(ctx, rng):
     """Column-parallel ADC offsets: every column's converter has its own offset per sample
-    (per tap), the same in every frame; o_kj ~ N(0, s) DN, s = 6-16 DN. A. El Gamal and H.
-    Eltoukhy, "CMOS image sensors", IEEE Circuits and Devices Magazine 21(3), 2005, sec. "Fixed
-    pattern noise" (column FPN of column-parallel read-out); M. F. Snoeij, A. J. P. Theuwissen,
-    K. A. A. Makinwa, J. H. Huijsing, "Multiple-ramp column-parallel ADC architectures for CMOS
-    image sensors", IEEE JSSC 42(12), 2007, sec. II (column offsets)."""
-    s = rng.uniform(6.0, 16.0)
+    (per tap), the same in every frame; o_kj ~ N(0, s) DN, s chosen so that the phase error
+    (rms s / (sqrt 2 A)) is 4-8 x the temporal-mean noise at the median pixel (s is reported,
+    typically 10-60 DN of the 16-bit range). A. El Gamal and H. Eltoukhy, "CMOS image sensors",
+    IEEE Circuits and Devices Magazine 21(3), 2005, sec. "Fixed pattern noise" (column FPN of
+    column-parallel read-out); M. F. Snoeij, A. J. P. Theuwissen, K. A. A. Makinwa, J. H.
+    Huijsing, "Multiple-ramp column-parallel ADC architectures for CMOS image sensors", IEEE JSSC
+    42(12), 2007, sec. II (column offsets)."""
+    v = rng.uniform(4.0, 8.0)
+    s = dn_for_visibility(ctx, v, 1 / math.sqrt(2))
     off = s * rng.standard_normal((N_PHASES, 1, ctx.w))
     off = np.broadcast_to(off, (N_PHASES, ctx.h, ctx.w)).copy()
-    return Plan(offset_dn=off), s, "DN rms per sample", {"column_offset_rms_dn": s}
+    return (
+        Plan(offset_dn=off),
+        s,
+        "DN rms per sample",
+        {"column_offset_rms_dn": s, "target_visibility": v},
+    )
 
 
 def fpn_row_offsets(ctx, rng):
     """Row offsets: a complex read-out offset per row (row-wise reset/driver coupling), added to
-    the raw samples as o_k = Re(z_i exp(-i theta_k)) / 2, |z_i| ~ Rayleigh(s), s = 6-16 DN. El
-    Gamal and Eltoukhy 2005 (above), sec. "Fixed pattern noise" (row FPN); EMVA 1288 Rel. 4.0,
-    sec. 8.3 (row and column non-uniformity in the spatial variance)."""
-    s = rng.uniform(6.0, 16.0)
+    the raw samples as o_k = Re(z_i exp(-i theta_k)) / 2, Re z_i, Im z_i ~ N(0, s) (phase error
+    rms s / (2 A)), s set for 4-8 x the temporal-mean noise at the median pixel. El Gamal and
+    Eltoukhy 2005 (above), sec. "Fixed pattern noise" (row FPN); EMVA 1288 Rel. 4.0, sec. 8.3
+    (row and column non-uniformity in the spatial variance)."""
+    v = rng.uniform(4.0, 8.0)
+    s = dn_for_visibility(ctx, v, 0.5)
     z = s * (rng.standard_normal(ctx.h) + 1j * rng.standard_normal(ctx.h))
     z = np.broadcast_to(z[:, None], (ctx.h, ctx.w))
     return (
         Plan(offset_dn=_complex_offset_taps(z)),
         s,
         "DN rms per component",
-        {"row_complex_offset_rms_dn": s * math.sqrt(2)},
+        {"row_complex_offset_rms_dn": s * math.sqrt(2), "target_visibility": v},
     )
 
 
 def fpn_dsnu_tap_map(ctx, rng):
-    """Pixel DSNU per tap: each pixel's tap has its own dark offset (white, plus a weak gradient),
-    the same in every frame, o_kij ~ N(0, s) DN with s = 6-16 DN. EMVA Standard 1288 Rel. 4.0
-    (2021), sec. 4.5 and 8 (DSNU: the spatial non-uniformity of the dark signal)."""
-    s = rng.uniform(6.0, 16.0)
+    """Pixel DSNU per tap: each pixel's tap has its own dark offset (white, plus a weak vertical
+    gradient), the same in every frame, o_kij ~ N(0, s) DN, s set for 4-8 x the temporal-mean
+    noise at the median pixel. EMVA Standard 1288 Rel. 4.0 (2021), sec. 4.5 and 8 (DSNU: the
+    spatial non-uniformity of the dark signal)."""
+    v = rng.uniform(4.0, 8.0)
+    s = dn_for_visibility(ctx, v, 1 / math.sqrt(2))
     off = s * rng.standard_normal((N_PHASES, ctx.h, ctx.w))
     yy = np.linspace(-1, 1, ctx.h)[:, None]
     off = off + rng.uniform(-1, 1, (N_PHASES, 1, 1)) * s * yy
-    return Plan(offset_dn=off), s, "DN rms per sample", {"dsnu_rms_dn": s}
+    return Plan(offset_dn=off), s, "DN rms per sample", {"dsnu_rms_dn": s, "target_visibility": v}
 
 
 def _pink_1d(rng, n, alpha=1.0):
@@ -719,11 +742,12 @@ def _pink_1d(rng, n, alpha=1.0):
 
 def fpn_column_1f_phase(ctx, rng):
     """Column phase offsets with a 1/f spectrum (a demodulation delay per column of the clock
-    tree, same in every frame): phi_j with power spectrum ~ 1/f, rms s = 12-30 mrad. EMVA 1288
+    tree, same in every frame): phi_j with power spectrum ~ 1/f, rms s = 4-8 x the temporal-mean
+    phase noise at the median pixel (typically 10-40 mrad). EMVA 1288
     Rel. 4.0, sec. 8.6 (non-white spatial spectra of the DSNU/PRNU); F. Mufti and R. Mahony,
     "Statistical analysis of signal measurement in time-of-flight cameras", ISPRS J. Photogramm.
     Remote Sens. 66(5), 2011 (per-pixel phase offsets as a fixed pattern)."""
-    s = rng.uniform(0.012, 0.030)
+    s = rng.uniform(4.0, 8.0) * float(np.median(noise_rad(ctx)))
     ph = s * _pink_1d(rng, ctx.w)
     return (
         Plan(phase=np.broadcast_to(ph[None, :], (ctx.h, ctx.w)).copy()),
@@ -763,15 +787,17 @@ def p0_fine_structure(h, w, rng, table=None):
 def fpn_kinect_p0(ctx, rng):
     """A real per-pixel phase-offset map: the fine structure of a Microsoft Kinect v2 factory P0
     table (tests/data/real/kinect_v2_p0), a crop at native resolution, smooth part removed,
-    scaled by a factor 1.5-3 (its native rms is 5-16 mrad), as a phase delay in every frame.
+    scaled to 4-8 x the temporal-mean phase noise at the median pixel (its native rms is 5-16
+    mrad; the scale factor is the magnitude), as a phase delay in every frame.
     libfreenect2 (L. Xiang, F. Echtler, C. Kerl, T. Wiedemeyer, Lars, hanyazou, R. Gordon, F.
     Facioni, laborer2008, R. Wareham, et al., "libfreenect2: Release 0.2", Zenodo 2016,
     doi:10.5281/zenodo.50641), src/cpu_depth_packet_processor.cpp (the P0 tables subtracted from
     the phase); C. S. Bamji et al., "A 0.13 um CMOS system-on-chip for a 512x424 time-of-flight
     image sensor with multi-frequency photo-demodulation up to 130 MHz and 2 GS/s ADC", IEEE JSSC
     50(1), 2015 (the sensor)."""
-    scale = rng.uniform(1.5, 3.0)
-    fine = p0_fine_structure(ctx.h, ctx.w, rng) * scale
+    fine = p0_fine_structure(ctx.h, ctx.w, rng)
+    scale = rng.uniform(4.0, 8.0) * float(np.median(noise_rad(ctx))) / float(fine.std())
+    fine = fine * scale
     s = float(fine.std())
     return (
         Plan(phase=fine),
@@ -882,10 +908,10 @@ def pg_prnu_white(ctx, rng):
 
 
 def pg_column_gain(ctx, rng):
-    """Column amplifier gain mismatch: one gain per column, 1 + s z_j, s = 2-5 %, the same in
-    every frame. El Gamal and Eltoukhy, IEEE Circuits and Devices Magazine 21(3), 2005 (column
+    """Column amplifier gain mismatch: one gain per column, 1 + s z_j, the same in every frame, s
+    = 5-10 x the relative temporal-mean amplitude noise at the median pixel (typically 1-5 %). El Gamal and Eltoukhy, IEEE Circuits and Devices Magazine 21(3), 2005 (column
     gain FPN); EMVA 1288 Rel. 4.0, sec. 8.3 (column PRNU)."""
-    s = rng.uniform(0.02, 0.05)
+    s = rng.uniform(5.0, 10.0) * float(np.median(noise_rad(ctx)))
     g = 1 + s * rng.standard_normal((1, ctx.w))
     return (
         Plan(gain_light=np.broadcast_to(g, (ctx.h, ctx.w)).copy()),
@@ -977,12 +1003,14 @@ def vig_led_lambertian(ctx, rng):
 
 
 def td_warmup_exp(ctx, rng):
-    """Warm-up: a global depth drift delta_d(t) = b (1 - exp(-t / tau)), tau = 4-12 frames, b =
-    2-6 cm, with the LED's power drooping 2-5 % on the same curve. T. Kahlmann, F. Remondino, H.
+    """Warm-up: a global depth drift delta_d(t) = b (1 - exp(-t / tau)), tau = 4-12 frames, |b| =
+    6-12 x the temporal-mean noise at the median pixel (typically 2-6 cm), with the LED's power
+    drooping 2-5 % on the same curve. T. Kahlmann, F. Remondino, H.
     Ingensand, ISPRS Comm. V Symposium 2006, sec. 4.1 (distance drift during warm-up); F.
     Chiabrando, R. Chiabrando, D. Piatti, F. Rinaudo, "Sensors for 3D imaging: metric evaluation
     and calibration of a CCD/CMOS time-of-flight camera", Sensors 9(12), 2009, sec. 3.1."""
-    b = rng.uniform(0.02, 0.06) * (1 if rng.uniform() < 0.5 else -1)
+    b = rng.uniform(6.0, 12.0) * float(np.median(ctx.noise_mean_m))
+    b *= 1 if rng.uniform() < 0.5 else -1
     tau = rng.uniform(4, 12)
     droop = rng.uniform(0.02, 0.05)
     s = 1 - np.exp(-np.arange(ctx.t) / tau)
@@ -998,11 +1026,13 @@ def td_warmup_exp(ctx, rng):
 
 def td_thermal_gradient(ctx, rng):
     """A linear drift over the frames whose rate varies across the sensor (a temperature gradient
-    from the illumination board): delta_d(t, x) = b t / (T-1) (0.5 + x / W), b = 2-6 cm. P.
+    from the illumination board): delta_d(t, x) = b t / (T-1) (0.5 + x / W), |b| = 6-12 x the
+    temporal-mean noise at the median pixel (typically 2-6 cm). P.
     Fuersattel, S. Placht, M. Balda, C. Schaller, H. Hofmann, A. Maier, C. Riess, "A comparative
     error analysis of current time-of-flight sensors", IEEE Trans. Computational Imaging 2(1),
     2016, sec. IV-A (temperature/warm-up drift)."""
-    b = rng.uniform(0.02, 0.06) * (1 if rng.uniform() < 0.5 else -1)
+    b = rng.uniform(6.0, 12.0) * float(np.median(ctx.noise_mean_m))
+    b *= 1 if rng.uniform() < 0.5 else -1
     tt = np.arange(ctx.t) / max(ctx.t - 1, 1)
     xx = np.linspace(0, 1, ctx.w)
     if rng.uniform() < 0.5:
@@ -1152,12 +1182,13 @@ def mp_diffuse_interreflection(ctx, rng):
 
 def nf_gaussian_phase_jitter(ctx, rng):
     """Clock jitter: the demodulation's timing error is Gaussian per pixel and frame with sigma_t
-    = 200-500 ps (sigma_phi = 2 pi f sigma_t), the same for bright and dark pixels. R. Lange,
+    (sigma_phi = 2 pi f sigma_t), the same for bright and dark pixels; sigma_phi = 2.5-5 x the
+    per-frame phase noise at the median pixel (typically 150-600 ps). R. Lange,
     PhD thesis 2000, sec. 4.2 (noise sources of the phase measurement); B. Buttgen, T. Oggier, M.
     Lehmann, R. Kaufmann, F. Lustenberger, "CCD/CMOS lock-in pixel for range imaging: challenges,
     limitations and state-of-the-art", 1st Range Imaging Research Day, ETH Zurich 2005, sec. 3."""
-    st = rng.uniform(200e-12, 500e-12)
-    sp = 2 * np.pi * F_MOD * st
+    sp = rng.uniform(2.5, 5.0) * float(np.median(noise_rad(ctx))) * math.sqrt(ctx.t)
+    st = sp / (2 * np.pi * F_MOD)
     ph = sp * rng.standard_normal((ctx.t, 1, ctx.h, ctx.w))
     return (
         Plan(phase=ph, temporal=True),
@@ -1169,11 +1200,13 @@ def nf_gaussian_phase_jitter(ctx, rng):
 
 def nf_tap_timing_jitter(ctx, rng):
     """Sampling-phase jitter: each of the 4 samples has its own random phase-step error
-    theta_k + e_k, e_k ~ N(0, s), s = 0.04-0.10 rad, per pixel and frame (a phase-shifting
-    estimate with random phase-shift errors). J. Brophy, "Effect of intensity error correlation on
+    theta_k + e_k, e_k ~ N(0, s), per pixel and frame (a phase-shifting estimate with random
+    phase-shift errors; the phase error's rms is s sqrt(3/8)); s set for 2.5-5 x the per-frame
+    phase noise at the median pixel. J. Brophy, "Effect of intensity error correlation on
     the computed phase of phase-shifting interferometry", JOSA A 7(4), 1990; K. Creath,
     "Phase-measurement interferometry techniques", Progress in Optics 26, 1988, sec. 5."""
-    s = rng.uniform(0.04, 0.10)
+    s = rng.uniform(2.5, 5.0) * float(np.median(noise_rad(ctx))) * math.sqrt(ctx.t)
+    s /= math.sqrt(3 / 8)
     th = s * rng.standard_normal((ctx.t, N_PHASES, ctx.h, ctx.w))
     return Plan(theta=th, temporal=True), s, "rad rms per sample", {"theta_rms_rad": s}
 

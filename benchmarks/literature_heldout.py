@@ -42,6 +42,7 @@ from literature_generator import (
     _value_noise,
     base_signal,
     cast,
+    dn_for_visibility,
     generate_with,
 )
 from scipy import interpolate, ndimage
@@ -197,11 +198,12 @@ def sat_vertical_blooming(ctx, rng):
 def fpn_split_readout_halves(ctx, rng):
     """Split read-out: the top and the bottom half of the array are converted by two banks of
     column ADCs (one bank at each edge), each column of each bank with its own offset per sample
-    (s = 6-16 DN) and each bank with a common offset (2-3 s): a seam at mid-height and two
+    (s DN, set for 4-8 x the temporal-mean noise at the median pixel) and each bank with a common
+    offset (2-3 s): a seam at mid-height and two
     unrelated column patterns. C. S. Bamji et al., "A 0.13 um CMOS system-on-chip for a 512x424
     time-of-flight image sensor with multi-frequency photo-demodulation up to 130 MHz and 2 GS/s
     ADC", IEEE JSSC 50(1), 2015, sec. III (the array read out to the top and the bottom)."""
-    s = rng.uniform(6.0, 16.0)
+    s = dn_for_visibility(ctx, rng.uniform(4.0, 8.0), 1 / math.sqrt(2))
     half = ctx.h // 2
     off = np.zeros((N_PHASES, ctx.h, ctx.w))
     for sl in (slice(0, half), slice(half, ctx.h)):
@@ -341,11 +343,11 @@ def vig_led_ring_offaxis(ctx, rng):
 
 def td_fan_cycle(ctx, rng):
     """A periodic drift from a thermostat/fan cycle: delta_d(t) = b sin(2 pi t / P + p0), P = 8-16
-    frames, b = 2-5 cm, with the LED power following the temperature (+-1-3 %). The LED delay's
+    frames, b = 6-12 x the temporal-mean noise at the median pixel (typically 2-5 cm), with the LED power following the temperature (+-1-3 %). The LED delay's
     temperature dependence: S. Seiter, et al., "Correction of the temperature induced error of the
     illumination source in a time-of-flight distance measurement setup", IEEE Sensors
     Applications Symposium 2013, sec. II; the periodic temperature is this generator's design."""
-    b = rng.uniform(0.02, 0.05)
+    b = rng.uniform(6.0, 12.0) * float(np.median(ctx.noise_mean_m))
     per = rng.uniform(8, 16)
     p0 = rng.uniform(0, 2 * np.pi)
     pw = rng.uniform(0.01, 0.03)
@@ -433,12 +435,13 @@ def mp_glossy_side_wall(ctx, rng):
 
 
 def nf_dual_dirac_jitter(ctx, rng):
-    """Dual-Dirac jitter: a deterministic jitter of +-DJ/2 (two equally likely values, DJ =
-    0.08-0.16 rad) plus a Gaussian random jitter (RJ = 0.02-0.04 rad), per pixel and frame,
-    independent of the amplitude. R. Stephens, "Jitter analysis: the dual-Dirac model, RJ/DJ, and
+    """Dual-Dirac jitter: a deterministic jitter of +-DJ/2 (two equally likely values) plus a
+    Gaussian random jitter RJ = 0.3 DJ / 2, per pixel and frame, independent of the amplitude; the
+    total rms 2.5-5 x the per-frame phase noise at the median pixel. R. Stephens, "Jitter analysis: the dual-Dirac model, RJ/DJ, and
     Q-scale", Agilent Technologies white paper 5989-3206EN, 2004, sec. 2."""
-    dj = rng.uniform(0.08, 0.16)
-    rj = rng.uniform(0.02, 0.04)
+    tot = rng.uniform(2.5, 5.0) * float(np.median(ctx.noise_mean_m / M_PER_RAD)) * math.sqrt(ctx.t)
+    dj = 2 * tot / math.sqrt(1 + 0.3**2)
+    rj = 0.3 * dj / 2
     sgn = rng.choice([-1.0, 1.0], size=(ctx.t, 1, ctx.h, ctx.w))
     ph = sgn * dj / 2 + rj * rng.standard_normal((ctx.t, 1, ctx.h, ctx.w))
     return Plan(phase=ph, temporal=True), dj, "rad peak-to-peak DJ", {"rj_rad": rj}
