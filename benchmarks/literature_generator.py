@@ -6,10 +6,11 @@ code with the package's simulator. NumPy/SciPy only.
 The camera
 ----------
 A continuous-wave (AMCW) ToF camera with N = 4 correlation samples per frame, as in R. Lange and P.
-Seitz, "Solid-state time-of-flight range camera", IEEE J. Quantum Electronics 37(3), 2001, eqs. (1)-(4)
-(the four-bucket sampling of the correlation function and the first-DFT-bin decoding), and R. Lange,
-"3D time-of-flight distance measurement with custom solid-state image sensors in CMOS/CCD-technology",
-PhD thesis, Univ. Siegen, 2000, ch. 2 and 4 (shot-noise limited phase precision, eq. 4.11 in spirit).
+Seitz, "Solid-state time-of-flight range camera", IEEE J. Quantum Electronics 37(3), 2001 (the
+four-bucket sampling of the correlation function and its decoding by the first DFT bin), and R.
+Lange, "3D time-of-flight distance measurement with custom solid-state image sensors in
+CMOS/CCD-technology", PhD thesis, Univ. Siegen, 2000, ch. 2 and 4 (demodulation, shot-noise limited
+phase precision).
 
 - pinhole camera, 70 deg horizontal field of view, the principal point in the centre; depth is the
   radial distance along the pixel's ray;
@@ -30,8 +31,15 @@ PhD thesis, Univ. Siegen, 2000, ch. 2 and 4 (shot-noise limited phase precision,
   never saturate.
 
 Every planted effect has a magnitude parameter and is reported in ``truth`` with a size in physical
-units and its visibility: the RMS change it makes (noiseless, with vs without the effect) against
-the per-pixel temporal-mean noise (per-frame noise std / sqrt(T), median over pixels).
+units and ``truth["stats"]``: the RMS change it makes to depth and amplitude (noiseless renders with
+and without the effect, over the pixels it touches) against the camera's noise there (the median
+per-pixel temporal std over T frames, divided by sqrt(T) -- the temporal-mean noise -- except for
+effects that change from frame to frame, which are compared with the per-frame noise);
+``visibility`` is the larger of the depth and amplitude ratios. Where a form's size in its own
+units would depend on the scene's signal level (fixed offsets in DN, phase maps, drifts, jitter),
+its magnitude is drawn as a multiple of the camera's noise at the median pixel and reported in
+physical units; the docstrings say which. Section numbers in the citations are given as
+remembered by the author of this module, the works themselves are the reference.
 
 Forms (dev); each form's docstring cites its source:
 
