@@ -57,19 +57,13 @@ def _init_worker():
     torch.set_num_threads(1)
 
 
-def run_case(args):
-    """Generate one recording and diagnose it: a JSON-able row."""
+def to_inputs(r):
+    """A generated recording as the diagnosis' inputs: (Recording, Scene)."""
     import torch
 
-    from tof_fpn_torch.diagnosis import diagnose
     from tof_fpn_torch.io import Recording
     from tof_fpn_torch.sim import Scene
 
-    part, family, form, seed, size = args
-    _, generate, _ = _part(part)
-    t0 = time.time()
-    r = generate(family, form, seed, tuple(size))
-    t_gen = time.time() - t0
     rec = Recording(
         torch.from_numpy(r["depth"][:, None]),
         torch.from_numpy(r["amplitude"][:, None]),
@@ -80,6 +74,19 @@ def run_case(args):
         torch.from_numpy(r["scene_depth"].astype("float32")[None, None]),
         torch.from_numpy(r["reflectance"].astype("float32")[None, None]),
     )
+    return rec, scene
+
+
+def run_case(args):
+    """Generate one recording and diagnose it: a JSON-able row."""
+    from tof_fpn_torch.diagnosis import diagnose
+
+    part, family, form, seed, size = args
+    _, generate, _ = _part(part)
+    t0 = time.time()
+    r = generate(family, form, seed, tuple(size))
+    t_gen = time.time() - t0
+    rec, scene = to_inputs(r)
     row = {"family": family, "form": form, "seed": seed, "truth": r["truth"]}
     t1 = time.time()
     try:

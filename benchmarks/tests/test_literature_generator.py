@@ -464,3 +464,14 @@ def test_case_list_counts_forms_and_nulls():
     assert len({c[2] for c in cases}) == len(cases)
     held = bl.case_list("heldout", 1, 1)
     assert min(c[2] for c in held) == lh.SEED0
+
+
+def test_recordings_are_accepted_by_the_package_as_recording_and_scene():
+    r = lh.generate("saturation", "sunlit_patch", lh.SEED0, SIZE)
+    rec, scene = bl.to_inputs(r)
+    h, w, t = SIZE
+    assert tuple(rec.depth.shape) == (t, 1, h, w) and tuple(rec.raw.shape) == (t, 4, h, w)
+    # the recording keeps the generator's invalid pixels as NaN and no others
+    assert np.array_equal(np.isnan(rec.depth.numpy()[:, 0]), np.isnan(r["depth"]))
+    assert rec.meta["n_phases"] == 4 and rec.meta["amplitude_unit"] == "DN"
+    np.testing.assert_array_equal(scene.depth.numpy()[0, 0], r["scene_depth"].astype(np.float32))
