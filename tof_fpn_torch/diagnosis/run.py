@@ -148,9 +148,13 @@ def diagnose(
         current, train_model, effects, rankings = forward(
             base, base_train, ranking, obs, ctx, before, start_values, only, max_effects
         )
+        forward_model = current
         if len(effects) > 1:  # backward check: a term a later one made redundant is dropped
             current, effects = prune(current, effects, obs, ctx)
-        if effects:
+        # the forward rounds end with the model's fit on the fitting half (the last ranking's),
+        # unless they stopped at the most effects (the winner's fit there) or the backward
+        # check dropped a term
+        if effects and (len(effects) >= max_effects or current is not forward_model):
             train_model, _ = fit(current, obs, ctx, "train")
         heldout_after = evaluate(train_model, obs, ctx, "test")
         after = _stats(current, obs, ctx, replicates, seed + 7) if effects else before
