@@ -118,12 +118,15 @@ def _fine(res: list, noise: list, m, depth, held=None) -> float | None:
 def _held_layers(obs, ctx, m, depth) -> tuple:
     """:func:`_layers` of the pixels ``m`` of ``obs`` under ``ctx``, kept on ``ctx`` for those
     observations (the ranking asks for shares in every round, the masks stay)."""
+    store = getattr(ctx, "_frames", None)
+    if store is None:  # not a diagnosis context: nothing to keep them on
+        return _layers(m, depth, depth.dtype, FINE_SCALE_PX)
     key = ("fine_layers",)
     ident = (obs.scene_depth, obs.m_a, obs.m_d, ctx.mask_a, ctx.mask_d)
-    entry = ctx._frames.get(key)
+    entry = store.get(key)
     if entry is None or any(a is not b for a, b in zip(entry[0], ident, strict=True)):
         entry = (ident, _layers(m, depth, depth.dtype, FINE_SCALE_PX))
-        ctx._frames[key] = entry
+        store[key] = entry
     return entry[1]
 
 
