@@ -7,9 +7,10 @@ pixel's temporal spread a mixture of distances, and the depth likelihood has no 
 
 Two frames show one pose when the median absolute difference of their depths is below
 :data:`SAME_POSE_Z` times the noise of a frame difference. That noise is taken from the pair of
-frames whose difference is quietest: the median absolute second difference along the rows of a
-difference image, over ``sqrt(6)`` (white noise's share; a surface that moved adds curvature and
-raises it). Frames that are exact copies (some recorders repeat a frame) join their original.
+consecutive frames whose difference is quietest: the median absolute second difference along
+the rows of a difference image, over ``sqrt(6)`` (white noise's share; a surface that moved adds
+curvature and raises it). Each frame joins the first group whose first frame shows its pose;
+frames that are exact copies (some recorders repeat a frame) join their original.
 """
 
 from __future__ import annotations
@@ -35,44 +36,34 @@ def _second_difference_noise(diff: torch.Tensor) -> float:
     return float(c.abs().median()) / math.sqrt(6.0)
 
 
+def _median_abs(diff: torch.Tensor) -> float:
+    ok = torch.isfinite(diff)
+    return float(diff[ok].abs().median()) if int(ok.sum()) >= 16 else math.nan
+
+
 def pose_groups(depth: torch.Tensor) -> list[list[int]]:
     """Frames of ``depth`` (T, H, W; NaN invalid) grouped by pose (module docstring), in order
-    of their first frame. One group when fewer than two frames or no pair can be compared."""
+    of their first frame. One group when fewer than two frames or no pair can be compared. Each
+    frame is compared with the first frame of every group so far (and the noise taken from the
+    pairs of consecutive frames), on at most 64 of the rows."""
     t = depth.shape[0]
     if t < 2:
         return [list(range(t))]
-    d = depth.to(torch.float64)
-    dist = torch.full((t, t), math.nan, dtype=torch.float64)
-    noise = []
-    for i in range(t):
-        for j in range(i + 1, t):
-            diff = d[i] - d[j]
-            ok = torch.isfinite(diff)
-            if int(ok.sum()) < 16:
-                continue
-            dist[i, j] = dist[j, i] = float(diff[ok].abs().median())
-            n = _second_difference_noise(diff)
-            if math.isfinite(n) and n > 0:
-                noise.append(n)
+    d = depth[:, :: max(1, depth.shape[1] // 64)].to(torch.float64)
+    noise = [_second_difference_noise(d[i + 1] - d[i]) for i in range(t - 1)]
+    noise = [n for n in noise if math.isfinite(n) and n > 0]
     if not noise:
         return [list(range(t))]
     limit = SAME_POSE_Z * min(noise)
-    parent = list(range(t))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
+    groups: list[list[int]] = []
     for i in range(t):
-        for j in range(i + 1, t):
-            if bool(dist[i, j] < limit):
-                parent[root(j)] = root(i)
-    groups: dict[int, list[int]] = {}
-    for i in range(t):
-        groups.setdefault(root(i), []).append(i)
-    return list(groups.values())
+        for g in groups:
+            if _median_abs(d[i] - d[g[0]]) < limit:
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    return groups
 
 
 def one_pose(recording):
