@@ -15,7 +15,8 @@ improvement. Results: docs/figures/diagnosis_bench.json (and a table on stdout).
 ``--speed-check`` is the speed regression guard: it runs the four timed diagnoses again (writing
 nothing) and exits with status 1 when a verdict differs from the one recorded in
 docs/figures/diagnosis_speed.json or a run's CPU time exceeds ``SPEED_GUARD`` times its recorded
-CPU time (CPU, not wall time: the machine may be shared).
+CPU time (CPU, not wall time; still, run it on an idle machine as the recorded times were: two
+torch threads on loaded cores spend more CPU time waiting on each other).
 """
 
 from __future__ import annotations
