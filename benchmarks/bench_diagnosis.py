@@ -10,6 +10,13 @@ improvement. Results: docs/figures/diagnosis_bench.json (and a table on stdout).
     python benchmarks/bench_diagnosis.py                    # full benchmark, 2 workers
     python benchmarks/bench_diagnosis.py --pilot EFFECT M1 M2 ...   # a few recordings, printed
     python benchmarks/bench_diagnosis.py --speed            # 24 x 120 x 160 and 50 x 204 x 204 timed
+    python benchmarks/bench_diagnosis.py --speed-check      # the same, against the recorded times
+
+``--speed-check`` is the speed regression guard: it runs the four timed diagnoses again (writing
+nothing) and exits with status 1 when a verdict differs from the one recorded in
+docs/figures/diagnosis_speed.json or a run's CPU time exceeds ``SPEED_GUARD`` times its recorded
+CPU time (CPU, not wall time; still, run it on an idle machine as the recorded times were: two
+torch threads on loaded cores spend more CPU time waiting on each other).
 """
 
 from __future__ import annotations
@@ -293,6 +300,32 @@ def summary(results: list[dict]) -> dict:
     return out
 
 
+#: ``--speed-check`` fails when a run's CPU time exceeds this many times its recorded one
+SPEED_GUARD: float = 1.5
+
+
+def speed_check(recorded_path: str, threads: int = 2) -> int:
+    """The speed regression guard (module docstring): 0 when every run's verdict is the
+    recorded one and its CPU time within ``SPEED_GUARD`` of the recorded, else 1."""
+    import tempfile
+
+    recorded = json.loads(Path(recorded_path).read_text())["runs"]
+    with tempfile.TemporaryDirectory() as tmp:
+        now = speed(str(Path(tmp) / "speed.json"), threads)["runs"]
+    status = 0
+    for old, new in zip(recorded, now, strict=True):
+        case = f"{old['effect'] or 'null'} {old['frames']} x {old['height']} x {old['width']}"
+        ratio = new["cpu_seconds"] / old["cpu_seconds"]
+        ok = new["verdict"] == old["verdict"] and ratio <= SPEED_GUARD
+        print(
+            f"{'ok  ' if ok else 'FAIL'} {case}: verdict {new['verdict']} (recorded "
+            f"{old['verdict']}), CPU {new['cpu_seconds']:.1f} s = {ratio:.2f} x recorded",
+            flush=True,
+        )
+        status |= not ok
+    return int(status)
+
+
 def speed(out_path: str, threads: int = 2) -> dict:
     """One full diagnosis (default bootstrap, figures rendered) of a null recording of 24 frames
     120 x 160 and one of 50 frames 204 x 204, and of the same sizes with a 2 % scene relay
@@ -366,8 +399,15 @@ def main() -> None:
     ap.add_argument("--factors", nargs="*", type=float, default=list(FACTORS))
     ap.add_argument("--size", nargs=3, type=int, default=[H, W, T], metavar=("H", "W", "T"))
     ap.add_argument("--out", default=str(HERE.parent / "docs/figures/diagnosis_bench.json"))
-    ap.add_argument("--speed", action="store_true", help="only the two timed diagnoses")
+    ap.add_argument("--speed", action="store_true", help="only the four timed diagnoses")
+    ap.add_argument(
+        "--speed-check",
+        action="store_true",
+        help="the timed diagnoses against docs/figures/diagnosis_speed.json (exit 1: slower)",
+    )
     a = ap.parse_args()
+    if a.speed_check:
+        raise SystemExit(speed_check(str(HERE.parent / "docs/figures/diagnosis_speed.json")))
     if a.speed:
         speed(str(HERE.parent / "docs/figures/diagnosis_speed.json"))
         return

@@ -27,6 +27,7 @@ __all__ = [
     "FIT_TOL",
     "INLIER_Z",
     "evaluate",
+    "evaluate_halves",
     "fit",
     "hessian",
     "init_model",
@@ -398,3 +399,10 @@ def evaluate(model: DiagnosisModel, obs: Observations, ctx: Context, sel: str = 
     """NLL (nats) of the ``sel`` pixels with the model's current values."""
     with torch.no_grad():
         return float(nll(model, obs, ctx, predict(model, obs, scene=ctx.scene), model.values, sel))
+
+
+def evaluate_halves(model: DiagnosisModel, obs: Observations, ctx: Context) -> tuple[float, float]:
+    """``(evaluate(..., "train"), evaluate(..., "test"))`` from one prediction."""
+    with torch.no_grad():
+        p = predict(model, obs, scene=ctx.scene)
+        return tuple(float(nll(model, obs, ctx, p, model.values, s)) for s in ("train", "test"))

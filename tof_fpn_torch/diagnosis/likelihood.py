@@ -318,18 +318,31 @@ def _best_share(cost) -> tuple[torch.Tensor, torch.Tensor]:
     return s, width
 
 
+def _pooled_stats(obs: Observations, ctx: Context, sel: str) -> tuple:
+    """``(depth pixels, amplitude pixels, their (n, m, M2))`` of the ``sel`` pixels: flat
+    indices in row-major order (what a boolean mask selects) and the pixels' statistics, kept on
+    ``ctx`` for the observations they were taken of (every objective evaluation needs them)."""
+    key = ("pooled", sel)
+    held = (obs.n, obs.m_d, obs.m2_d, obs.m_a, obs.m2_a)
+    entry = ctx._frames.get(key)  # one read: another thread may replace the entry meanwhile
+    if entry is None or any(a is not b for a, b in zip(entry[0], held, strict=True)):
+        s = ctx.select(sel)
+        idd = (ctx.mask_d & s).reshape(-1).nonzero().squeeze(1)
+        ida = (ctx.mask_a & s).reshape(-1).nonzero().squeeze(1)
+        n, m_d, m2_d, m_a, m2_a = (x.reshape(-1) for x in held)
+        stats = (n[idd], m_d[idd], m2_d[idd], n[ida], m_a[ida], m2_a[ida])
+        entry = (held, idd, ida, stats)
+        ctx._frames[key] = entry
+    return entry[1], entry[2], entry[3]
+
+
 def _nll_pooled(obs: Observations, ctx: Context, pred, sel: str) -> torch.Tensor:
     """The NLL from each pixel's ``(n, m, M2)`` (no term acts per frame)."""
-    s = ctx.select(sel)
-    md, ma = ctx.mask_d & s, ctx.mask_a & s
-    tau_d = pred.tau_d[md] if isinstance(pred.tau_d, torch.Tensor) else pred.tau_d
-    out = _gauss_ss(
-        obs.n[md], obs.m_d[md], obs.m2_d[md], pred.mu_d[md], pred.sd_d[md], tau_d, pred.wrap
-    )
-    tau = pred.tau_a[ma] if isinstance(pred.tau_a, torch.Tensor) else pred.tau_a
-    return out + _gauss_ss(
-        obs.n[ma], obs.m_a[ma], obs.m2_a[ma], pred.mu_a[ma], pred.sd_a[ma], tau, None
-    )
+    idd, ida, (n_d, m_d, m2_d, n_a, m_a, m2_a) = _pooled_stats(obs, ctx, sel)
+    tau_d = _pick(pred.tau_d, idd)
+    out = _gauss_ss(n_d, m_d, m2_d, _pick(pred.mu_d, idd), _pick(pred.sd_d, idd), tau_d, pred.wrap)
+    tau = _pick(pred.tau_a, ida)
+    return out + _gauss_ss(n_a, m_a, m2_a, _pick(pred.mu_a, ida), _pick(pred.sd_a, ida), tau, None)
 
 
 def _tail_gain(yd, vd, sd, tail, wrap) -> torch.Tensor:

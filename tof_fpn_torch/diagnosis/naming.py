@@ -18,7 +18,7 @@ from dataclasses import replace
 import torch
 
 from .catalogue import CATALOGUE, Term, implemented
-from .fit import FIT_ITERS, evaluate, fit, hessian
+from .fit import FIT_ITERS, evaluate, evaluate_halves, fit, hessian
 from .model import CORE_SPECS, DiagnosisModel
 from .prediction import predict
 from .threads import map_threads
@@ -145,8 +145,7 @@ def rank(
     ``start_values``: robust starting values of the core parameters, tried as a second start."""
     if base_train is None:
         base_train, _ = fit(model, obs, ctx, "train")
-    nll_train = evaluate(base_train, obs, ctx, "train")
-    nll_test = evaluate(base_train, obs, ctx, "test")
+    nll_train, nll_test = evaluate_halves(base_train, obs, ctx)
     # the core block of the Hessian, once: every candidate starts near the current model, and
     # its whitening computes only the term's own rows
     hint = hessian(base_train, obs, ctx, "train", free=[s.key for s in CORE_SPECS])
@@ -229,15 +228,15 @@ def _key(r: dict) -> float:
 def _score(name, cand, base_train, nll_train, nll_test, obs, ctx, free, share=None) -> dict:
     """Held-out gain and AIC change of the fitted candidate ``cand`` (term ``name``); both gains
     scaled by ``share``, the share of the misfit with the term's signature (None: 1)."""
-    c_train = evaluate(cand, obs, ctx, "train")
-    c_test = evaluate(cand, obs, ctx, "test")
+    c_train, c_test = evaluate_halves(cand, obs, ctx)
     k = cand.n_parameters() - base_train.n_parameters()
     # the gain is what the term itself brings: against the current model fitted on the same
     # half, and against the candidate with the term switched off (its other values kept)
     off = cand.copy()
     off.terms = [t for t in off.terms if t.name != name]
-    gain_train = min(nll_train, evaluate(off, obs, ctx, "train")) - c_train
-    gain = min(nll_test, evaluate(off, obs, ctx, "test")) - c_test
+    off_train, off_test = evaluate_halves(off, obs, ctx)
+    gain_train = min(nll_train, off_train) - c_train
+    gain = min(nll_test, off_test) - c_test
     if share is not None:
         gain_train, gain = gain_train * share, gain * share
     daic = 2 * k - 2 * gain_train

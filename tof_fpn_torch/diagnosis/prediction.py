@@ -53,15 +53,29 @@ class Prediction:
     tau_d: torch.Tensor | float = 0.0
 
 
+#: the baseline FPN's column waves of the last ``(width, dtype)``: computed once, not per call
+_WAVES: dict = {}
+
+
+def _waves(w: int, dt: torch.dtype) -> tuple:
+    key = (w, dt)
+    out = _WAVES.get(key)
+    if out is None:
+        x = torch.arange(w, dtype=torch.float64)
+        w23 = K.FPN_FREQUENCIES[0]
+        out = (torch.cos(w23 * x).to(dt), torch.sin(w23 * x).to(dt), torch.cos(math.pi * x).to(dt))
+        _WAVES.clear()
+        _WAVES[key] = out
+    return out
+
+
 def _baseline_fpn(samples: torch.Tensor, v: dict) -> torch.Tensor:
     n, w = samples.shape[1], samples.shape[3]
-    x = torch.arange(w, dtype=torch.float64)
-    w23 = K.FPN_FREQUENCIES[0]
-    dt = samples.dtype
+    c23, s23, c_pi = _waves(w, samples.dtype)
     p = (
-        v["readout_fpn.cos_2pi3"] * torch.cos(w23 * x).to(dt)
-        - v["readout_fpn.sin_2pi3"] * torch.sin(w23 * x).to(dt)
-        + v["readout_fpn.cos_pi"] * torch.cos(math.pi * x).to(dt)
+        v["readout_fpn.cos_2pi3"] * c23
+        - v["readout_fpn.sin_2pi3"] * s23
+        + v["readout_fpn.cos_pi"] * c_pi
     )
     th = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
     wn = torch.cos(th - v["readout_fpn.sample_phase"])
@@ -190,14 +204,33 @@ def _boundary_side(mu_d, var_d, obs, r_cam: float):
     itself is near the boundary: there a reading near 0 instead of near R is what phase wrapping
     looks like."""
     lim = WRAP_BOUNDARY_SD * var_d.sqrt()
-    near = (dev_to_boundary(mu_d, r_cam) < lim) & (dev_to_boundary(obs.scene_depth, r_cam) >= lim)
-    if obs.frequency is not None:
-        # the camera decodes into [0, R): where the scene lies inside its stated range, a
-        # reading across 0 / R is the decoder's fold of noise or of a bias, not a scene beyond
-        near |= obs.scene_depth < r_cam
+    scene_dev, inside = _scene_boundary(obs, r_cam)
+    near = (dev_to_boundary(mu_d, r_cam) < lim) & (scene_dev >= lim)
+    if inside is not None:
+        near |= inside
     near &= obs.known
     alt = mu_d + r_cam * torch.round((obs.m_d - mu_d) / r_cam)
     return torch.where(near, alt, mu_d)
+
+
+#: the last observations' scene distances to the wrap boundary: ``(scene depth, known, R,
+#: frequency stated, value)``; the entry holds the tensors, so no other can take their address
+_SCENE_BOUNDARY: list = [None]
+
+
+def _scene_boundary(obs, r_cam: float):
+    """``(distance of the scene depth to the wrap boundary, where the scene lies inside the
+    camera's stated range or None)``, computed once per observations (every prediction needs
+    them)."""
+    entry = _SCENE_BOUNDARY[0]  # one read: another thread may replace the entry meanwhile
+    stated = obs.frequency is not None
+    if entry is None or entry[0] is not obs.scene_depth or entry[1] != r_cam or entry[2] != stated:
+        # the camera decodes into [0, R): where the scene lies inside its stated range, a
+        # reading across 0 / R is the decoder's fold of noise or of a bias, not a scene beyond
+        inside = obs.scene_depth < r_cam if stated else None
+        entry = (obs.scene_depth, r_cam, stated, (dev_to_boundary(obs.scene_depth, r_cam), inside))
+        _SCENE_BOUNDARY[0] = entry
+    return entry[3]
 
 
 def _amplitude_tau(model, v: dict, mu_a):

@@ -18,6 +18,7 @@ from .locate import Stat, bootstrap, locate, statistics
 from .model import DiagnosisModel
 from .naming import rank
 from .persist import adapt_model, load_model
+from .poses import one_pose
 from .prediction import predict
 from .rounds import forward, prune
 from .summary import baseline_summary, describe_effects, fit_summary, report_content
@@ -113,7 +114,9 @@ def diagnose(
         scene: the ground truth (:class:`~tof_fpn_torch.io.SceneData`, a one-scene
             :class:`~tof_fpn_torch.sim.Scene` or a scene ``.npz`` path); ``None``: estimated from
             the recording (temporal median, edge-aware smoothing; see docs/diagnosis.md for what
-            that can and cannot reveal).
+            that can and cannot reveal); of a recording whose frames show several poses (the
+            camera or the scene moved), the frames of the largest pose are diagnosed and a note
+            says which (``diagnosis.poses``).
         baseline: starting model (a :class:`DiagnosisModel` or the path of a ``model.json`` a
             diagnosis wrote); default the issue's baseline.
         max_effects: most terms added (the loop also stops when no candidate is significant).
@@ -129,8 +132,13 @@ def diagnose(
     """
     t0 = time.perf_counter()
     recording, scene = _load(recording, scene)
+    pose_note = None
+    if scene is None:  # the scene is estimated from the frames: those of one pose
+        recording, pose_note = one_pose(recording)
     with _threads(threads):
         obs = observe(recording, scene)
+        if pose_note is not None:
+            obs.notes.append(pose_note)
         only = REVEALED_WITHOUT_SCENE if obs.scene_estimated else None
         base, ctx, start_values = _fit_baseline(_baseline(obs, baseline), obs)
         nll_base = evaluate(base, obs, ctx)
@@ -140,9 +148,13 @@ def diagnose(
         current, train_model, effects, rankings = forward(
             base, base_train, ranking, obs, ctx, before, start_values, only, max_effects
         )
+        forward_model = current
         if len(effects) > 1:  # backward check: a term a later one made redundant is dropped
             current, effects = prune(current, effects, obs, ctx)
-        if effects:
+        # the forward rounds end with the model's fit on the fitting half (the last ranking's),
+        # unless they stopped at the most effects (the winner's fit there) or the backward
+        # check dropped a term
+        if effects and (len(effects) >= max_effects or current is not forward_model):
             train_model, _ = fit(current, obs, ctx, "train")
         heldout_after = evaluate(train_model, obs, ctx, "test")
         after = _stats(current, obs, ctx, replicates, seed + 7) if effects else before

@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 
 from .. import constants as K
 
@@ -55,33 +54,55 @@ OUTLIER_Z: float = 5.0
 COURSE_Z: float = 3.0
 
 
-def _blur(x: torch.Tensor, s: float) -> torch.Tensor:
-    """Separable Gaussian smoothing (sd ``s`` px, 3 sd each side), zeros beyond the frame (the
-    diagnosis layer does not import kornia)."""
+def _band(n: int, k: torch.Tensor) -> torch.Tensor:
+    """The (n, n) matrix of the correlation with the symmetric taps ``k`` (2 r + 1), zeros
+    beyond the ends: ``x @ band`` smooths the last axis of ``x``."""
+    r = (k.numel() - 1) // 2
+    i = torch.arange(n)
+    d = i.view(-1, 1) - i.view(1, -1)
+    return torch.where(d.abs() <= r, k[(d + r).clamp(0, 2 * r)], torch.zeros((), dtype=k.dtype))
+
+
+def _blur_layers(x: torch.Tensor, s: float) -> torch.Tensor:
+    """Separable Gaussian smoothing (sd ``s`` px, 3 sd each side) of every map of ``x``
+    (L, H, W), zeros beyond the frame (the diagnosis layer does not import kornia), as products
+    with banded matrices (a float64 ``conv2d`` on the CPU costs fifty times as much)."""
     r = int(3 * s)
     t = torch.arange(-r, r + 1, dtype=x.dtype)
     k = torch.exp(-(t**2) / (2 * s * s))
     k = k / k.sum()
-    z = F.conv2d(F.pad(x[None, None], (r, r, 0, 0)), k.view(1, 1, 1, -1))
-    return F.conv2d(F.pad(z, (0, 0, r, r)), k.view(1, 1, -1, 1))[0, 0]
+    h, w = x.shape[-2:]
+    return _band(h, k) @ (x @ _band(w, k))
 
 
-def _layered_smooth(x: torch.Tensor, m: torch.Tensor, depth: torch.Tensor, s: float):
-    """Normalised Gaussian smoothing of ``x`` over the pixels ``m`` within +-1 depth layer."""
+def _layers(m: torch.Tensor, depth: torch.Tensor, dtype, s: float) -> tuple:
+    """``(layer of every pixel, layers present, their masks (L, H, W), the smoothed masks summed
+    over +-1 layer (L, H, W))``: what :func:`_layered_smooth` needs of ``m`` and ``depth``."""
     layer = torch.floor(depth / DEPTH_LAYER_M).long()
-    num, den = {}, {}
-    for v in layer[m].unique().tolist():
-        sel = (m & (layer == v)).to(x.dtype)
-        num[v], den[v] = _blur(x * sel, s), _blur(sel, s)
+    vals = layer[m].unique().tolist()
+    sel = torch.stack([(m & (layer == v)) for v in vals]).to(dtype)
+    den = _blur_layers(sel, s)
+    pos = {v: i for i, v in enumerate(vals)}
+    dens = torch.stack(
+        [sum(den[pos[u]] for u in (v - 1, v, v + 1) if u in pos) for v in vals]
+    ).clamp_min(1e-12)
+    return layer, vals, sel, dens
+
+
+def _layered_smooth(x: torch.Tensor, m: torch.Tensor, depth: torch.Tensor, s: float, held=None):
+    """Normalised Gaussian smoothing of ``x`` over the pixels ``m`` within +-1 depth layer
+    (``held``: :func:`_layers` of ``m`` and ``depth``, computed here when not given)."""
+    layer, vals, sel, dens = _layers(m, depth, x.dtype, s) if held is None else held
+    num = _blur_layers(x * sel, s)
+    pos = {v: i for i, v in enumerate(vals)}
     out = torch.zeros_like(x)
-    for v in num:
-        n = sum(num[u] for u in (v - 1, v, v + 1) if u in num)
-        d = sum(den[u] for u in (v - 1, v, v + 1) if u in den)
-        out = torch.where(layer == v, n / d.clamp_min(1e-12), out)
+    for i, v in enumerate(vals):
+        n = sum(num[pos[u]] for u in (v - 1, v, v + 1) if u in pos)
+        out = torch.where(layer == v, n / dens[i], out)
     return out
 
 
-def _fine(res: list, noise: list, m, depth) -> float | None:
+def _fine(res: list, noise: list, m, depth, held=None) -> float | None:
     """Share of the excess variance of the residual maps ``res`` (noise variances ``noise``)
     left after the layered smoothing."""
     tot = sum(float((r[m] ** 2).mean() - v[m].mean()) for r, v in zip(res, noise, strict=True))
@@ -89,9 +110,24 @@ def _fine(res: list, noise: list, m, depth) -> float | None:
         return None
     fine = 0.0
     for r, v in zip(res, noise, strict=True):
-        hp = r - _layered_smooth(torch.where(m, r, 0.0), m, depth, FINE_SCALE_PX)
+        hp = r - _layered_smooth(torch.where(m, r, 0.0), m, depth, FINE_SCALE_PX, held)
         fine += float((hp[m] ** 2).mean() - v[m].mean())
     return min(max(fine / tot, 0.0), 1.0)
+
+
+def _held_layers(obs, ctx, m, depth) -> tuple:
+    """:func:`_layers` of the pixels ``m`` of ``obs`` under ``ctx``, kept on ``ctx`` for those
+    observations (the ranking asks for shares in every round, the masks stay)."""
+    store = getattr(ctx, "_frames", None)
+    if store is None:  # not a diagnosis context: nothing to keep them on
+        return _layers(m, depth, depth.dtype, FINE_SCALE_PX)
+    key = ("fine_layers",)
+    ident = (obs.scene_depth, obs.m_a, obs.m_d, ctx.mask_a, ctx.mask_d)
+    entry = store.get(key)
+    if entry is None or any(a is not b for a, b in zip(entry[0], ident, strict=True)):
+        entry = (ident, _layers(m, depth, depth.dtype, FINE_SCALE_PX))
+        store[key] = entry
+    return entry[1]
 
 
 def fine_share(obs, ctx, pred, phasor: bool = False) -> float | None:
@@ -119,9 +155,10 @@ def fine_share(obs, ctx, pred, phasor: bool = False) -> float | None:
         res.append(rd * ka)
         noise.append((pred.sd_d.detach() * ka) ** 2 / obs.n.clamp_min(1))
     scale = mu.clamp_min(1e-12)
+    held = _held_layers(obs, ctx, m, depth)
     shares = (
-        _fine(res, noise, m, depth),
-        _fine([r / scale for r in res], [v / scale**2 for v in noise], m, depth),
+        _fine(res, noise, m, depth, held),
+        _fine([r / scale for r in res], [v / scale**2 for v in noise], m, depth, held),
     )
     if any(x is None for x in shares):
         return None
