@@ -28,9 +28,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import literature_generator as lg  # noqa: E402
+import literature_generator as lg  # the script's folder is on the path
 
 
 def _part(part):

@@ -157,9 +157,11 @@ class ComplexPattern:
             "noise_sigma": float(self.noise_sigma),
             "shrink_factor": float(self.shrink_factor),
             "has_rows": has_rows,
-            "focal_length_px": self.focal_length_px,
-            "amplitude_floor": self.amplitude_floor,
         }
+        # set only when used: a plain pattern's file keeps its layout
+        for key in ("focal_length_px", "amplitude_floor"):
+            if getattr(self, key) is not None:
+                meta[key] = float(getattr(self, key))
         zeros = torch.zeros(h, dtype=torch.float64)
         arrays = {
             "column_offset_re": self.column_offset_re,
