@@ -128,7 +128,9 @@ def test_a_term_that_does_not_explain_its_own_structure_is_held_back_as_unexplai
         {"name": "cyclic_error", "score": 200.0},
     ]
     conf = confidence(named, held, [first], before, after)
-    assert conf["runner_up"] == "multipath" and conf["runner_up_share"] == pytest.approx(1 / 3, abs=1e-4)
+    assert conf["runner_up"] == "multipath" and conf["runner_up_share"] == pytest.approx(
+        1 / 3, abs=1e-4
+    )
     assert conf["held_back"] == ["cyclic_error"]
     assert conf["level"] == "moderate"  # its structure explained, something else left
     # a close runner-up makes it low; a clear one with nothing left makes it high
@@ -199,3 +201,65 @@ def test_the_report_says_unexplained_and_how_sure():
     assert "Confidence: moderate (runner-up `multipath` gains 33% as much" in md
     assert "## Unexplained: structure no single term explains" in md
     assert "stood in for by `cyclic_error`" in md
+
+
+def _clipped_recording(share: float, spread: float, raw: bool, seed: int = 7):
+    """The test recording's samples (DN) clipped at a full well of each pixel's own: the level
+    the largest noise-free sample of a ``share`` of the pixels passes, times ``exp(spread z)``
+    per pixel (``z`` standard normal), decoded again (``share`` 0: not clipped); with ``raw`` the
+    samples go along."""
+    from test_diagnosis import META, H, W, _sim
+
+    from tof_fpn_torch.io import SceneData
+    from tof_fpn_torch.sim import synthetic_scene
+    from tof_fpn_torch.sim.camera import depth_from_samples
+
+    scene = synthetic_scene(H, W, seed=seed, depth_range=(0.6, 5.0))
+    out = _sim().run(scene, 10, seed=seed)
+    s = out.samples.double()
+    peak = s.mean(0).amax(0)  # (H, W) the largest mean sample
+    level = float(torch.quantile(peak.flatten(), 1 - share))
+    g = torch.Generator().manual_seed(seed)
+    lv = torch.round(level * torch.exp(spread * torch.randn(H, W, generator=g, dtype=s.dtype)))
+    if share > 0:
+        s = torch.minimum(s, lv)
+    depth, amp, _ = depth_from_samples(s, float(META["modulation_frequency_hz"]))
+    depth = torch.where(depth > 0, depth, torch.full_like(depth, math.nan))
+    rec = Recording(
+        depth.float(), amp.float(), dict(META, amplitude_unit="DN"), s.float() if raw else None
+    )
+    sd = SceneData(scene.depth[0, 0], scene.reflectance[0, 0], meta={"source": "test"})
+    return rec, sd, level
+
+
+def test_raw_piles_find_the_clip_level_and_the_pixels_clipped_at_their_own():
+    """The raw samples' direct evidence of a clip: a common level where samples pile up, and
+    pixels whose largest sample repeats; none in an unclipped recording."""
+    from tof_fpn_torch.diagnosis.data import observe
+    from tof_fpn_torch.diagnosis.terms.saturation import raw_piles
+
+    rec, sd, level = _clipped_recording(0.1, 0.0, raw=True)
+    p = raw_piles(observe(rec, sd))
+    assert p["level"] == pytest.approx(round(level))
+    assert 0.05 < p["pixel_share"] < 0.3
+    rec, sd, level = _clipped_recording(0.1, 0.05, raw=True)
+    p = raw_piles(observe(rec, sd))
+    assert 0.05 < p["pixel_share"] < 0.3  # each at its own level
+    assert p["pixel_levels"][1] == pytest.approx(level, rel=0.1)
+    rec, sd, _ = _clipped_recording(0.0, 0.0, raw=True)  # nothing clipped
+    p = raw_piles(observe(rec, sd))
+    assert p["level"] is None and p["pixel_share"] < 0.01
+    assert raw_piles(observe(*_clipped_recording(0.1, 0.0, raw=False)[:2])) is None
+
+
+@pytest.mark.slow
+def test_a_full_well_of_each_pixel_is_named_saturation_from_the_raw_samples():
+    """A full well that varies from pixel to pixel (5 % rms), reached by the brightest tenth of
+    the pixels, with the raw samples in the recording: named ``saturation``, its level where
+    the samples pile up and the piles stated in the report."""
+    rec, sd, level = _clipped_recording(0.1, 0.05, raw=True)
+    out = diagnose(rec, sd, replicates=0)
+    assert out.report["verdict"][:1] == ["saturation"], out.report["verdict"]
+    p = out.report["effects"][0]["params"]
+    assert p["raw_share_of_pixels_piled_at_their_top"] > 0.05
+    assert p["level_amplitude_units"] == pytest.approx(level, rel=0.1)
