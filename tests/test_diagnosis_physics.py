@@ -38,16 +38,6 @@ def _p0_fine_map(h: int, w: int, frequency: float, rms_m: float) -> torch.Tensor
     return torch.from_numpy(m * (rms_m / m.std()))
 
 
-def test_the_p0_map_has_column_and_pixel_parts():
-    """The planted map is what the brief of the test says: a real table's fine structure with a
-    column part and a larger part of its own per pixel."""
-    m = _p0_fine_map(40, 56, 20e6, 6e-3)
-    col = m.mean(0)
-    pix = m - col.view(1, -1) - m.mean(1).view(-1, 1) + m.mean()
-    assert float(col.std()) > 0.1 * float(m.std())
-    assert float(pix.std()) > 0.5 * float(m.std())
-
-
 @pytest.mark.slow
 def test_a_real_per_pixel_phase_map_is_named_fpn_pattern():
     """A real per-pixel phase-offset map (the Kinect v2 table's fine structure, 6 mm rms),
@@ -58,6 +48,9 @@ def test_a_real_per_pixel_phase_map_is_named_fpn_pattern():
     rec, scene = _recording(seed=6)
     f = float(META["modulation_frequency_hz"])
     m = _p0_fine_map(*rec.depth.shape[-2:], f, 6e-3)
+    col = m.mean(0)  # the map has a column part and a larger part per pixel
+    pix = m - col.view(1, -1) - m.mean(1).view(-1, 1) + m.mean()
+    assert float(col.std()) > 0.1 * float(m.std()) and float(pix.std()) > 0.5 * float(m.std())
     depth = rec.depth + m.view(1, 1, *m.shape).to(rec.depth.dtype)
     out = diagnose(Recording(depth, rec.amplitude, rec.meta), scene, replicates=0)
     assert out.report["verdict"] == ["fpn_pattern"], out.report["verdict"]
@@ -74,18 +67,44 @@ def _weak_bias(rec, delay_m: float, quantile: float) -> torch.Tensor:
     return delay_m * torch.exp(-a / a0)
 
 
-@pytest.mark.slow
-def test_a_bias_of_the_weakest_pixels_is_named_amplitude_bias():
-    """A delay ``b exp(-A / A0)`` (60 mm as A -> 0, ``A0`` the 3rd percentile of the amplitude:
-    carried by the weakest few per cent of the pixels), added to the depths, is named
-    ``amplitude_bias``."""
+def test_the_shape_member_starts_from_a_bias_of_the_weakest_pixels():
+    """A delay ``b exp(-A / A0)`` (30 mm as A -> 0, ``A0`` the 5th percentile of the amplitude:
+    the weakest few per cent of the pixels carry it) on the test recording: the shape member's
+    best start (least squares on the depth residuals of the baseline) has its knots in the
+    weakest pixels and fits the bias better than the starts spread over the amplitudes."""
     from test_diagnosis import _recording
 
+    from tof_fpn_torch.diagnosis.data import observe
+    from tof_fpn_torch.diagnosis.fit import init_model
+    from tof_fpn_torch.diagnosis.likelihood import make_context
+    from tof_fpn_torch.diagnosis.prediction import predict
+    from tof_fpn_torch.diagnosis.terms.amplitude_bias_shape import (
+        AmplitudeBiasShapeTerm,
+        node_delays,
+    )
+    from tof_fpn_torch.diagnosis.terms.base import depth_residuals
+
     rec, scene = _recording(seed=6)
-    b = _weak_bias(rec, 0.06, 0.03)
+    b = _weak_bias(rec, 0.03, 0.05)
     depth = rec.depth + b.view(1, 1, *b.shape).to(rec.depth.dtype)
-    out = diagnose(Recording(depth, rec.amplitude, rec.meta), scene, replicates=0)
-    assert out.report["verdict"] == ["amplitude_bias"], out.report["verdict"]
+    obs = observe(Recording(depth, rec.amplitude, rec.meta), scene)
+    model = init_model(obs, obs.scene())
+    with torch.no_grad():
+        p = predict(model, obs)
+    ctx = make_context(obs, p.a0 / p.s)
+    term = AmplitudeBiasShapeTerm()
+    rd, wd = depth_residuals(obs, ctx, p)
+    a_e = (p.a0 * model.values["camera.conversion_gain"])[ctx.mask_d]
+    sse = []
+    for v in term.initial_values(model, obs, ctx, p):
+        fit = term.simulator_term(v, model).bias(a_e)
+        sse.append((float((wd * (rd - fit) ** 2).sum()), v))
+        assert node_delays(v)[0] == pytest.approx(v["amplitude_bias_shape.delay"])
+    best = min(sse, key=lambda t: t[0])
+    weakest = float(torch.quantile(a_e, 0.005))
+    assert best[1]["amplitude_bias_shape.knot0"] == pytest.approx(weakest, rel=1e-6)
+    spread = [e for e, v in sse if v["amplitude_bias_shape.knot0"] > 1.001 * weakest]
+    assert spread and best[0] < min(spread)
 
 
 def _stat(key: str, significant: bool):
