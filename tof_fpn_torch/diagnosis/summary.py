@@ -175,7 +175,7 @@ def report_content(
             }
             for e in held
         ],
-        "also_consistent_with": also_consistent(effects, rankings),
+        "also_consistent_with": also_consistent(effects + held, rankings),
         "fit": fits,
         "located_before": located(before, replicates),
         "located_after": located(after, replicates),
