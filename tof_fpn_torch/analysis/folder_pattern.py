@@ -507,12 +507,12 @@ def _readout_model(
     d: torch.Tensor, var: torch.Tensor, amp: torch.Tensor, frequencies: tuple[float, ...]
 ) -> tuple[float | None, float | None, dict]:
     """Whether the column pattern is a read-out offset (``~ 1 / A``) rather than a depth offset:
-    the frequency whose basis fits best (least squares on ~32 rows), then the field of view
-    (:data:`FIELDS_OF_VIEW_DEG`) and, where one is found, the frequency again; then both models
-    learned on each half of the scenes and scored on the other half (on ~128 rows) (the robust
-    loss of :func:`_columns`); the read-out model is chosen only when it predicts the held-out
-    half better by :data:`READOUT_MARGIN`. ``(f or None, focal length (px) or None,
-    evidence)``."""
+    the three frequencies whose bases fit best (robust fits on ~32 rows), each with every field
+    of view (:data:`FIELDS_OF_VIEW_DEG`), scored by how well a fit on one half of the scenes
+    predicts the other; then both models learned on each half and scored on the other half (on
+    ~128 rows) (the robust loss of :func:`_columns`); the read-out model is chosen only when it
+    predicts the held-out half better by :data:`READOUT_MARGIN`. ``(f or None, focal length (px)
+    or None, evidence)``."""
     sub = slice(None, None, max(1, d.shape[1] // 32))  # ~32 rows: the frequency's choice
     ds, vs, amps = d[:, sub], var[:, sub], amp[:, sub]
     h, w = d.shape[-2:]
