@@ -519,14 +519,15 @@ def _readout_model(
 
     halves = (slice(0, None, 2), slice(1, None, 2))
 
-    def fit(f: float, fov: float | None) -> float:
+    def sub_basis(f: float, fov: float | None) -> torch.Tensor:  # of the ~32 rows
         ray = _ray(h, w, _focal_px(w, fov))
-        b, _ = _basis(ds, amps, f, None if ray is None else ray[sub])
-        return _columns(_column_terms(ds, vs, b), iterations=SELECT_ITERATIONS)[1]
+        return _basis(ds, amps, f, None if ray is None else ray[sub])[0]
+
+    def fit(f: float, fov: float | None) -> float:
+        return _columns(_column_terms(ds, vs, sub_basis(f, fov)), iterations=SELECT_ITERATIONS)[1]
 
     def held_out(f: float, fov: float | None) -> float:
-        ray = _ray(h, w, _focal_px(w, fov))
-        b, _ = _basis(ds, amps, f, None if ray is None else ray[sub])
+        b = sub_basis(f, fov)
         terms = [_column_terms(ds[h_], vs[h_], b[:, h_]) for h_ in halves]
         theta = [_columns(t, iterations=SELECT_ITERATIONS)[0] for t in terms]
         return _loss(terms[1], theta[0]) + _loss(terms[0], theta[1])
