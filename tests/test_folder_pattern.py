@@ -67,6 +67,19 @@ def test_column_offsets_are_learned_from_different_scenes():
     assert "columns" in learned.summary() and "8 scenes" in learned.summary()
 
 
+def test_the_column_offsets_low_frequencies_are_learned_too():
+    """White column offsets: their low frequencies are where a scene's slopes hide them from
+    second differences between neighbours; third differences at a wider gap see them. Every
+    frame comes within 0.6 dB of the oracle (with second differences alone: 0.92 dB short)."""
+    pattern = columns(3, 0.003)
+    d, t = folder(8, pattern, 0.002, seed=4)
+    learned = learn_folder_pattern(d)
+    assert learned.pattern is not None, learned.reason
+    gains = np.array(gain_db(d, t, learned.pattern.offset_map().numpy()))
+    oracle = np.array(gain_db(d, t, pattern))
+    assert (oracle - gains).max() < 0.6, (gains, oracle)
+
+
 def test_a_per_pixel_map_is_learned():
     rng = np.random.default_rng(5)
     pattern = rng.normal(0, 0.003, (H, W))
@@ -132,27 +145,31 @@ def test_the_noise_model_follows_one_over_amplitude():
 def test_the_column_model_solves_the_least_squares_problem(channels):
     """The first (least-squares) iteration of the column model, offsets alone (1 channel) or with
     a read-out's two more channels (3), against NumPy's lstsq of the same objective written out
-    row by row."""
+    row by row: second differences at gap 1 and third differences at gap 4."""
     rng = np.random.default_rng(11)
-    n, h, w = 3, 5, 9
+    n, h, w = 3, 5, 17  # odd: torch.median and np.median agree
     d = torch.from_numpy(rng.normal(0, 1, (n, h, w)))
     var = torch.from_numpy(rng.uniform(0.5, 2, (n, h, w)))
     basis = torch.from_numpy(rng.normal(0, 1, (channels, n, h, w)))
     basis[0] = 1.0
+    assert fp.GAPS == (1, 4)
     got, _ = fp._columns(fp._column_terms(d, var, basis), iterations=1)
-    e = np.asarray(fp._d2(d, -1))
-    s2 = np.asarray(fp._d2_var(var, -1))
-    b = basis.numpy()
+    dn, vn, b = d.numpy(), var.numpy(), basis.numpy()
     rows, rhs = [], []
-    for i in range(n):
-        for y in range(h):
-            for x in range(w - 2):
-                row = np.zeros(channels * w)
-                for k, kappa in enumerate((1.0, -2.0, 1.0)):
-                    for c in range(channels):
-                        row[c * w + x + k] += kappa * b[c, i, y, x + k]
-                rows.append(row / np.sqrt(s2[i, y, x]))
-                rhs.append(e[i, y, x] / np.sqrt(s2[i, y, x]))
+    for gap, kernel in ((1, (1.0, -2.0, 1.0)), (4, (1.0, -3.0, 3.0, -1.0))):
+        span = (len(kernel) - 1) * gap
+        for i in range(n):
+            for y in range(h):
+                for x in range(w - span):
+                    at = [x + k * gap for k in range(len(kernel))]
+                    e = sum(c * dn[i, y, j] for c, j in zip(kernel, at, strict=True))
+                    s2 = sum(c * c * vn[i, y, j] for c, j in zip(kernel, at, strict=True))
+                    row = np.zeros(channels * w)
+                    for c, j in zip(kernel, at, strict=True):
+                        for a in range(channels):
+                            row[a * w + j] += c * b[a, i, y, j]
+                    rows.append(row / np.sqrt(s2))
+                    rhs.append(e / np.sqrt(s2))
     rows = np.array(rows)
     lam = 1e-2 * float(np.median(np.diag(rows.T @ rows)[:w]))
     a = np.vstack([rows, np.sqrt(lam) * np.eye(channels * w)])
@@ -181,21 +198,30 @@ def test_tiny_frames_learn_nothing():
     assert learned.pattern is None and "too small" in learned.reason
 
 
+@pytest.mark.parametrize("gap", [1, 4])
 @pytest.mark.parametrize("dim", [-1, -2])
-def test_the_second_difference_adjoint_is_its_transpose(dim):
-    """<D2 x, e> = <x, D2^T e>, and the squared kernel gives the diagonal of D2^T diag(e) D2."""
+def test_the_difference_adjoint_is_its_transpose(dim, gap):
+    """<D x, e> = <x, D^T e>, and ``squared`` gives the diagonal of D^T diag(e) D (the second
+    difference at gap 1, the third at gap 4), checked on unit vectors."""
     g = torch.Generator().manual_seed(4)
-    x = torch.randn(2, 7, 9, generator=g, dtype=torch.float64)
-    e = torch.randn(fp._d2(x, dim).shape, generator=g, dtype=torch.float64)
+    x = torch.randn(2, 15, 17, generator=g, dtype=torch.float64)
+    e = torch.randn(fp._diff(x, dim, gap).shape, generator=g, dtype=torch.float64)
     n = x.shape[dim]
-    assert torch.allclose((fp._d2(x, dim) * e).sum(), (x * fp._d2t(e, dim, n)).sum())
-    w = torch.rand(fp._d2(x, dim).shape, generator=g, dtype=torch.float64)
-    diag = fp._d2t(w, dim, n, (1.0, 4.0, 1.0))
-    for idx in [(0, 3, 4), (1, 0, 0), (1, 6, 8)]:
+    assert torch.allclose((fp._diff(x, dim, gap) * e).sum(), (x * fp._diff_t(e, dim, n, gap)).sum())
+    w = torch.rand(fp._diff(x, dim, gap).shape, generator=g, dtype=torch.float64)
+    diag = fp._diff_t(w, dim, n, gap, squared=True)
+    for idx in [(0, 3, 4), (1, 0, 0), (1, 14, 16), (0, 7, 8)]:
         unit = torch.zeros_like(x)
         unit[idx] = 1.0
-        d = fp._d2(unit, dim)
+        d = fp._diff(unit, dim, gap)
         assert torch.allclose(diag[idx], (w * d * d).sum())
+    # the kernels themselves: a second difference at gap 1, a third at gap 4
+    ramp = torch.arange(17, dtype=torch.float64)
+    assert torch.equal(fp._diff(ramp**2, -1, 1), torch.full((15,), 2.0, dtype=torch.float64))
+    assert torch.allclose(fp._diff(ramp**2, -1, 4), torch.zeros(5, dtype=torch.float64))
+    assert torch.allclose(
+        fp._diff(ramp**3, -1, 4), torch.full((5,), -6.0 * 64, dtype=torch.float64)
+    )
 
 
 @pytest.mark.parametrize(("h", "w"), [(8, 9), (200, 8), (9, 400), (17, 23)])

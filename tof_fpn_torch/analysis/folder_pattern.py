@@ -74,6 +74,21 @@ MIN_SIDE = 8
 MIN_Z = 6.0
 #: Tukey's biweight cut-off, in noise standard deviations of a second difference
 TUKEY_C = 3.0
+#: the gaps of the column and row models' second differences: gap 1 sees a pattern's high
+#: frequencies, a wider gap its low ones (a plane's second differences vanish at any gap)
+GAPS: tuple[int, ...] = (1, 4)
+#: the difference taken at each gap: the second (gap 1); the third at wider gaps, which also
+#: vanishes on a scene's steady curvature (a slanted plane's depth is not linear in x)
+_KERNELS: dict[int, tuple[float, ...]] = {1: (1.0, -2.0, 1.0)}
+_WIDE_KERNEL = (1.0, -3.0, 3.0, -1.0)
+
+
+def _kernel(gap: int) -> tuple[float, ...]:
+    return _KERNELS.get(gap, _WIDE_KERNEL)
+
+
+#: the least-squares start leaves out second differences beyond this many robust spreads
+START_CLIP = 5.0
 #: empirical Bayes iterations (the first one least squares)
 ITERATIONS = 6
 #: conjugate-gradient iterations of the pixel part per outer iteration
@@ -206,25 +221,35 @@ class LearnedPattern:
 # is not an observation)
 
 
-def _d2(x: torch.Tensor, dim: int) -> torch.Tensor:
-    n = x.shape[dim]
-    return x.narrow(dim, 0, n - 2) - 2 * x.narrow(dim, 1, n - 2) + x.narrow(dim, 2, n - 2)
+def _diff(x: torch.Tensor, dim: int, gap: int = 1) -> torch.Tensor:
+    """The difference :func:`_kernel` of ``gap`` along ``dim`` (second at gap 1, else third)."""
+    kernel = _kernel(gap)
+    m = x.shape[dim] - (len(kernel) - 1) * gap
+    return sum(c * x.narrow(dim, k * gap, m) for k, c in enumerate(kernel))
 
 
-def _d2t(e: torch.Tensor, dim: int, n: int, kernel=(1.0, -2.0, 1.0)) -> torch.Tensor:
-    """The adjoint of :func:`_d2` (length ``n - 2`` back to ``n`` along ``dim``); with the
-    squared kernel (1, 4, 1), the diagonal of ``D2^T diag(e) D2``."""
+def _diff_t(e: torch.Tensor, dim: int, n: int, gap: int = 1, squared: bool = False):
+    """The adjoint of :func:`_diff` (back to length ``n`` along ``dim``); with ``squared``, the
+    diagonal of ``D^T diag(e) D``."""
+    kernel = _kernel(gap)
     shape = list(e.shape)
     shape[dim] = n
     out = e.new_zeros(shape)
+    m = e.shape[dim]
     for k, c in enumerate(kernel):
-        out.narrow(dim, k, n - 2).add_(c * e)
+        out.narrow(dim, k * gap, m).add_((c * c if squared else c) * e)
     return out
 
 
-def _d2_var(var: torch.Tensor, dim: int) -> torch.Tensor:
-    n = var.shape[dim]
-    return var.narrow(dim, 0, n - 2) + 4 * var.narrow(dim, 1, n - 2) + var.narrow(dim, 2, n - 2)
+def _diff_var(var: torch.Tensor, dim: int, gap: int = 1) -> torch.Tensor:
+    """The variance of :func:`_diff` of independent pixels of variance ``var``."""
+    kernel = _kernel(gap)
+    m = var.shape[dim] - (len(kernel) - 1) * gap
+    return sum(c * c * var.narrow(dim, k * gap, m) for k, c in enumerate(kernel))
+
+
+def _d2(x: torch.Tensor, dim: int) -> torch.Tensor:
+    return _diff(x, dim, 1)
 
 
 def _first_prior(weights: torch.Tensor) -> float:
@@ -246,6 +271,21 @@ def _tukey(u: torch.Tensor) -> torch.Tensor:
     return torch.where(u < 1, (1 - u * u) ** 2, torch.zeros_like(u))
 
 
+def _start_weights(e0: torch.Tensor, w0: torch.Tensor, sd: torch.Tensor) -> torch.Tensor:
+    """The first (least-squares) iteration's weights: ``w0`` without the second differences
+    beyond :data:`START_CLIP` robust spreads (MAD) of the frame's ``e0 / sd``. An edge or kink
+    that every frame shows at the same place (a still scene, one object that spans the frame) would
+    otherwise be fitted by the least-squares start and, once fitted, never look like an outlier to
+    the Tukey iterations."""
+    u = (e0 / sd).abs()
+    out = w0.clone()
+    for i in range(u.shape[0]):
+        seen = u[i][w0[i] > 0]
+        if seen.numel():
+            out[i] = torch.where(u[i] <= START_CLIP * 1.4826 * seen.median(), w0[i], 0.0)
+    return out
+
+
 def _noise_var(d: torch.Tensor, amp: torch.Tensor | None) -> torch.Tensor:
     """(N, H, W) noise variance: ``(k_i / A)^2`` with ``k_i`` from the MAD of the frame's second
     differences, each divided by its model sd ``sqrt(1/A_{x-1}^2 + 4/A_x^2 + 1/A_{x+1}^2)`` (one
@@ -254,7 +294,7 @@ def _noise_var(d: torch.Tensor, amp: torch.Tensor | None) -> torch.Tensor:
     med = torch.nanmedian(a.flatten(1).where(torch.isfinite(d.flatten(1)), math.nan), 1).values
     a = torch.maximum(a, 0.05 * med.clamp_min(1e-12)[:, None, None])
     inv = 1.0 / (a * a)
-    e = (_d2(d, -1) / _d2_var(inv, -1).sqrt()).flatten(1)  # sd k where the model holds
+    e = (_d2(d, -1) / _diff_var(inv, -1).sqrt()).flatten(1)  # sd k where the model holds
     k = torch.nanmedian(e.abs(), 1).values * 1.4826
     k = torch.nan_to_num(k, nan=1.0).clamp_min(1e-6)
     return (k[:, None, None] / a) ** 2
@@ -319,31 +359,40 @@ def _basis(
     ), a_ref
 
 
-def _column_terms(d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor):
-    """The observations of the column model: second differences along x, their weights and sds,
-    and the basis at the three pixels of each difference, ``(3, K, N, H, W-2)``."""
+def _column_terms(
+    d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor, gaps: tuple[int, ...] | None = None
+) -> list[tuple]:
+    """The observations of the column model, one set per gap ``g`` of :data:`GAPS` (or
+    ``gaps``): the second differences ``d(x) - 2 d(x + g) + d(x + 2 g)`` along x, their weights
+    and sds, the basis at the three pixels of each difference ``(3, K, N, H, W - 2 g)``, and
+    ``g``."""
     w = d.shape[-1]
-    e = _d2(d, -1)
-    s2 = _d2_var(var, -1)
-    ok = torch.isfinite(e) & torch.isfinite(s2)
-    e0 = torch.where(ok, e, 0.0)
-    w0 = torch.where(ok, 1.0 / torch.where(ok, s2, 1.0), 0.0)
-    sd = torch.where(ok, s2, 1.0).sqrt()
-    b = torch.nan_to_num(basis)
-    shifted = torch.stack([b[..., k : k + w - 2] for k in range(3)])  # (3, K, N, H, W-2)
-    return e0, w0, sd, shifted
+    out = []
+    for g in GAPS if gaps is None else gaps:
+        kappa = _kernel(g)
+        m = w - (len(kappa) - 1) * g
+        if m < 1:
+            continue
+        e = _diff(d, -1, g)
+        s2 = _diff_var(var, -1, g)
+        ok = torch.isfinite(e) & torch.isfinite(s2)
+        e0 = torch.where(ok, e, 0.0)
+        w0 = torch.where(ok, 1.0 / torch.where(ok, s2, 1.0), 0.0)
+        sd = torch.where(ok, s2, 1.0).sqrt()
+        b = torch.nan_to_num(basis)
+        shifted = torch.stack([b[..., k * g : k * g + m] for k in range(len(kappa))])  # (L,K,N,H,m)
+        out.append((e0, w0, sd, shifted, g))
+    return out
 
 
-_KAPPA = (1.0, -2.0, 1.0)
-
-
-def _column_model(theta: torch.Tensor, shifted: torch.Tensor) -> torch.Tensor:
-    """``D2`` of the pattern ``sum_a theta_a(x) B_a`` at each second difference."""
-    w = theta.shape[-1]
+def _column_model(theta: torch.Tensor, shifted: torch.Tensor, gap: int = 1) -> torch.Tensor:
+    """The second difference (of gap ``gap``) of the pattern ``sum_a theta_a(x) B_a`` at each
+    observation."""
+    m = shifted.shape[-1]
     out = torch.zeros_like(shifted[0, 0])
-    for k in range(3):
-        th = theta[:, k : k + w - 2]  # (K, W-2)
-        out = out + _KAPPA[k] * (shifted[k] * th[:, None, None, :]).sum(0)
+    for k, c in enumerate(_kernel(gap)):
+        th = theta[:, k * gap : k * gap + m]  # (K, m)
+        out = out + c * (shifted[k] * th[:, None, None, :]).sum(0)
     return out
 
 
@@ -351,50 +400,62 @@ def _tukey_loss(u: torch.Tensor) -> torch.Tensor:
     return torch.where(u < 1, 1 - (1 - u * u) ** 3, torch.ones_like(u))
 
 
-def _columns(terms, iterations: int = ITERATIONS):
+def _columns(terms: list[tuple], iterations: int = ITERATIONS):
     """Column profiles ``theta`` (K, W) of the channels (module docstring) and the robust loss
-    of the fit: the normal equations of the weighted second differences, solved densely, with
-    one white prior per kind of channel (offsets; the read-out offset's two channels)."""
-    e0, w0, sd, shifted = terms
-    _, k_ch, _, _, m = shifted.shape
-    w = m + 2
-    idx = torch.arange(m)
-    theta = shifted.new_zeros(k_ch, w)
-    post = shifted.new_zeros(k_ch * w)  # the posterior variances, from the first solve on
+    of the fit: the normal equations of the weighted second differences (every gap's), solved
+    densely, with one white prior per kind of channel (offsets; the read-out offset's two
+    channels)."""
+    k_ch = terms[0][3].shape[1]
+    w = terms[0][3].shape[-1] + (terms[0][3].shape[0] - 1) * terms[0][4]
+    theta = terms[0][3].new_zeros(k_ch, w)
+    post = theta.new_zeros(k_ch * w)  # the posterior variances, from the first solve on
     for it in range(iterations):
-        if it == 0:
-            wt = w0
-        else:
-            u = (e0 - _column_model(theta, shifted)).abs() / (TUKEY_C * sd)
-            wt = w0 * _tukey(u)
-        if not bool(wt.gt(0).any()):
-            return shifted.new_zeros(k_ch, w), float("inf")
-        # every (shift, channel) pair at once: a batched product over the pixels of each column
-        flat = shifted.reshape(3 * k_ch, -1, m).permute(2, 0, 1)  # (m, 3K, N*H)
-        kappa = torch.tensor(_KAPPA, dtype=flat.dtype).repeat_interleave(k_ch)  # (3K,)
-        weighted = flat * wt.reshape(1, -1, m).permute(2, 0, 1)
-        g = torch.bmm(weighted, flat.transpose(1, 2)) * (kappa[:, None] * kappa[None, :])
-        r = (weighted * e0.reshape(1, -1, m).permute(2, 0, 1)).sum(2) * kappa  # (m, 3K)
-        # (shift k, channel a) of column x is unknown a * W + x + k
-        pos = torch.arange(k_ch).repeat(3) * w + torch.arange(3).repeat_interleave(k_ch)
-        unknown = pos[None, :] + idx[:, None]  # (m, 3K)
-        mat = shifted.new_zeros(k_ch * w, k_ch * w)
-        mat.index_put_(
-            (
-                unknown[:, :, None].expand_as(g).flatten(),
-                unknown[:, None, :].expand_as(g).flatten(),
-            ),
-            g.flatten(),
-            accumulate=True,
-        )
-        rhs = shifted.new_zeros(k_ch * w).index_add_(0, unknown.flatten(), r.flatten())
+        mat = theta.new_zeros(k_ch * w, k_ch * w)
+        rhs = theta.new_zeros(k_ch * w)
+        seen = False
+        for e0, w0, sd, shifted, gap in terms:
+            m = shifted.shape[-1]
+            if it == 0:
+                wt = _start_weights(e0, w0, sd)
+            else:
+                u = (e0 - _column_model(theta, shifted, gap)).abs() / (TUKEY_C * sd)
+                wt = w0 * _tukey(u)
+            if not bool(wt.gt(0).any()):
+                continue
+            seen = True
+            # every (shift, channel) pair at once: a batched product over the pixels of a column
+            taps = shifted.shape[0]
+            flat = shifted.reshape(taps * k_ch, -1, m).permute(2, 0, 1)  # (m, LK, N*H)
+            kappa = torch.tensor(_kernel(gap), dtype=flat.dtype).repeat_interleave(k_ch)
+            weighted = flat * wt.reshape(1, -1, m).permute(2, 0, 1)
+            g = torch.bmm(weighted, flat.transpose(1, 2)) * (kappa[:, None] * kappa[None, :])
+            r = (weighted * e0.reshape(1, -1, m).permute(2, 0, 1)).sum(2) * kappa  # (m, 3K)
+            # (shift k, channel a) of observation x is unknown a * W + x + k * gap
+            shift = torch.arange(taps).repeat_interleave(k_ch) * gap
+            pos = torch.arange(k_ch).repeat(taps) * w + shift
+            unknown = pos[None, :] + torch.arange(m)[:, None]  # (m, 3K)
+            mat.index_put_(
+                (
+                    unknown[:, :, None].expand_as(g).flatten(),
+                    unknown[:, None, :].expand_as(g).flatten(),
+                ),
+                g.flatten(),
+                accumulate=True,
+            )
+            rhs.index_add_(0, unknown.flatten(), r.flatten())
+        if not seen:
+            return theta.new_zeros(k_ch, w), float("inf")
         diag = torch.diagonal(mat)
         if it == 0:
             lam = [_first_prior(diag[:w])] * k_ch
         else:
-            lam = [1.0 / max(float((theta[0] ** 2).mean() + post[:w].mean()), 1e-8)]
+            # the white prior's variance from the estimate's roughness: a white profile's second
+            # differences have 6 times its variance, while a smooth shape a scene leaves (which
+            # the data can hardly tell from a pattern) has almost none and cannot weaken it
+            power = _d2(theta, -1).pow(2).mean(1) / 6.0  # (K,)
+            lam = [1.0 / max(float(power[0] + post[:w].mean()), 1e-8)]
             if k_ch > 1:
-                prior = float((theta[1:] ** 2).mean() + post[w:].mean())
+                prior = float(power[1:].mean() + post[w:].mean())
                 lam += [1.0 / max(prior, 1e-8)] * (k_ch - 1)
         mat = mat + torch.diag(torch.tensor(lam, dtype=mat.dtype).repeat_interleave(w))
         theta = _spd_solve(mat, rhs).view(k_ch, w)
@@ -403,32 +464,37 @@ def _columns(terms, iterations: int = ITERATIONS):
     return theta, _loss(terms, theta)
 
 
-def _loss(terms, theta: torch.Tensor) -> float:
+def _loss(terms: list[tuple], theta: torch.Tensor) -> float:
     """The robust (Tukey) loss of ``theta`` on the observations ``terms``."""
-    e0, w0, sd, shifted = terms
-    u = (e0 - _column_model(theta, shifted)).abs() / (TUKEY_C * sd)
-    return float(_tukey_loss(u)[w0 > 0].sum())
+    total = 0.0
+    for e0, w0, sd, shifted, gap in terms:
+        u = (e0 - _column_model(theta, shifted, gap)).abs() / (TUKEY_C * sd)
+        total += float(_tukey_loss(u)[w0 > 0].sum())
+    return total
 
 
 def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) -> torch.Tensor:
-    """Per-pixel offsets of (N, H, W) frames (module docstring), zero-mean."""
+    """Per-pixel offsets of (N, H, W) frames (module docstring), zero-mean: the differences of
+    every gap of :data:`GAPS` along x and along y."""
     _, h, w = d.shape
     terms = []
     for dim, n in ((-1, w), (-2, h)):
-        if n < 3:
-            continue
-        e = _d2(d, dim)
-        s2 = _d2_var(var, dim)
-        ok = torch.isfinite(e) & torch.isfinite(s2)
-        terms.append(
-            (
-                dim,
-                n,
-                torch.where(ok, e, 0.0),
-                torch.where(ok, 1.0 / torch.where(ok, s2, 1.0), 0.0),
-                torch.where(ok, s2, 1.0).sqrt(),
+        for gap in GAPS:
+            if n - (len(_kernel(gap)) - 1) * gap < 1:
+                continue
+            e = _diff(d, dim, gap)
+            s2 = _diff_var(var, dim, gap)
+            ok = torch.isfinite(e) & torch.isfinite(s2)
+            terms.append(
+                (
+                    dim,
+                    n,
+                    gap,
+                    torch.where(ok, e, 0.0),
+                    torch.where(ok, 1.0 / torch.where(ok, s2, 1.0), 0.0),
+                    torch.where(ok, s2, 1.0).sqrt(),
+                )
             )
-        )
     p = d.new_zeros(h, w)
     if not terms:
         return p
@@ -437,31 +503,32 @@ def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) ->
     for it in range(iterations):
         rhs = torch.zeros_like(p)
         counts = []
-        for dim, n, e0, w0, sd in terms:
+        for dim, n, gap, e0, w0, sd in terms:
             if it == 0:
-                wt = w0
+                wt = _start_weights(e0, w0, sd)
             else:
-                wt = w0 * _tukey((e0 - _d2(p[None], dim)).abs() / (TUKEY_C * sd))
+                wt = w0 * _tukey((e0 - _diff(p[None], dim, gap)).abs() / (TUKEY_C * sd))
             cnt = wt.sum(0)
-            rhs += _d2t((wt * e0).sum(0), dim, n)
-            counts.append((dim, n, cnt))
+            rhs += _diff_t((wt * e0).sum(0), dim, n, gap)
+            counts.append((dim, n, gap, cnt))
         if lam is None:
-            lam = _first_prior(torch.cat([c.flatten() for _, _, c in counts]))
-        else:
-            lam = 1.0 / max(float((p * p).mean() + post.mean()), 1e-8)
+            lam = _first_prior(torch.cat([c.flatten() for *_, c in counts]))
+        else:  # the white prior's variance from the map's roughness (as in :func:`_columns`)
+            power = sum(float(_d2(p, dim).pow(2).mean()) for dim in (-1, -2)) / 12.0
+            lam = 1.0 / max(power + float(post.mean()), 1e-8)
         if lam <= 0:
             return torch.zeros_like(p)
 
         def op(x: torch.Tensor, lam: float = lam, counts: list = counts) -> torch.Tensor:
             out = lam * x
-            for dim, n, cnt in counts:
-                out = out + _d2t(cnt * _d2(x, dim), dim, n)
+            for dim, n, gap, cnt in counts:
+                out = out + _diff_t(cnt * _diff(x, dim, gap), dim, n, gap)
             return out
 
         p = _cg(op, rhs, p)
         diag = torch.full_like(p, lam)
-        for dim, n, cnt in counts:
-            diag += _d2t(cnt, dim, n, (1.0, 4.0, 1.0))
+        for dim, n, gap, cnt in counts:
+            diag += _diff_t(cnt, dim, n, gap, squared=True)
         post = 1.0 / diag  # the posterior variances (diagonal approximation)
     return p - p.mean()
 
@@ -524,11 +591,12 @@ def _readout_model(
         return _basis(ds, amps, f, None if ray is None else ray[sub])[0]
 
     def fit(f: float, fov: float | None) -> float:
-        return _columns(_column_terms(ds, vs, sub_basis(f, fov)), iterations=SELECT_ITERATIONS)[1]
+        terms = _column_terms(ds, vs, sub_basis(f, fov), gaps=(1,))
+        return _columns(terms, iterations=SELECT_ITERATIONS)[1]
 
     def held_out(f: float, fov: float | None) -> float:
         b = sub_basis(f, fov)
-        terms = [_column_terms(ds[h_], vs[h_], b[:, h_]) for h_ in halves]
+        terms = [_column_terms(ds[h_], vs[h_], b[:, h_], gaps=(1,)) for h_ in halves]
         theta = [_columns(t, iterations=SELECT_ITERATIONS)[0] for t in terms]
         return _loss(terms[1], theta[0]) + _loss(terms[0], theta[1])
 
@@ -542,7 +610,10 @@ def _readout_model(
     held = {}
     for name, basis in (("offset", ones), ("readout", b_full)):
         rows = slice(None, None, max(1, d.shape[1] // 128))  # ~128 rows: the model's choice
-        terms = [_column_terms(d[h_, rows], var[h_, rows], basis[:, h_, rows]) for h_ in halves]
+        terms = [
+            _column_terms(d[h_, rows], var[h_, rows], basis[:, h_, rows], gaps=(1,))
+            for h_ in halves
+        ]
         theta = [_columns(t, iterations=5)[0] for t in terms]
         held[name] = _loss(terms[1], theta[0]) + _loss(terms[0], theta[1])
     chosen = held["readout"] < (1 - READOUT_MARGIN) * held["offset"]
