@@ -21,7 +21,13 @@ from .persist import adapt_model, load_model
 from .poses import one_pose
 from .prediction import predict
 from .rounds import forward, prune
-from .summary import baseline_summary, describe_effects, fit_summary, report_content
+from .summary import (
+    baseline_summary,
+    describe_effects,
+    fit_summary,
+    hold_back,
+    report_content,
+)
 
 __all__ = ["BOOTSTRAP", "Diagnosis", "diagnose"]
 
@@ -159,11 +165,12 @@ def diagnose(
         heldout_after = evaluate(train_model, obs, ctx, "test")
         after = _stats(current, obs, ctx, replicates, seed + 7) if effects else before
         describe_effects(effects, current, obs, ctx, before, after)
+        effects, held = hold_back(effects, before, after)
         fits = {
             "before": fit_summary(base, obs, ctx, nll_base, heldout_before),
             "after": fit_summary(current, obs, ctx, evaluate(current, obs, ctx), heldout_after),
         }
-        report = report_content(effects, fits, rankings, before, after, obs, ctx, replicates)
+        report = report_content(effects, fits, rankings, before, after, obs, ctx, replicates, held)
         report["baseline"] = baseline_summary(base)
         report["seconds"] = round(time.perf_counter() - t0, 2)
     return Diagnosis(report, base, current, obs, ctx, before, after, rankings)

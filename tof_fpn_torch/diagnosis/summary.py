@@ -16,12 +16,21 @@ from .prediction import predict
 __all__ = [
     "also_consistent",
     "baseline_summary",
+    "confidence",
     "describe_effects",
     "explained",
     "fit_summary",
+    "hold_back",
     "located",
+    "on_its_own",
     "report_content",
 ]
+
+#: the verdict is ``high`` when the best candidate of another effect gained less than this share
+#: of the named effect's held-out gain in the first round ...
+CLEAR_SHARE: float = 0.5
+#: ... and ``low`` when it gained at least this share (two readings about as good)
+CLOSE_SHARE: float = 0.9
 
 
 def fit_summary(model, obs, ctx, nll_all: float, heldout: float) -> dict:
@@ -65,15 +74,108 @@ def describe_effects(effects: list, model, obs, ctx, before: dict, after: dict) 
         e["where"] = explained(terms[0], before, after)
 
 
-def report_content(effects, fits, rankings, before, after, obs, ctx, replicates: int) -> dict:
-    """The ``report.json`` content (without ``seconds``)."""
+def on_its_own(effect: dict, before: dict, after: dict) -> bool:
+    """Whether a named effect explains a structure on its own: a statistic on its terms' axes
+    (``Term.axes``) significant before and not after; a term whose own axes stay significant
+    stands in for a part of a structure it does not explain. An effect whose axes were not
+    significant before explains a structure of its own only if nothing significant is left."""
+    keys = {
+        k
+        for t in effect.get("terms", [effect["name"]])
+        for k in CATALOGUE[t].axes
+        if k in before and k in after
+    }
+    if any(before[k].significant and not after[k].significant for k in keys):
+        return True
+    if any(before[k].significant for k in keys):
+        return False
+    return not any(s.significant for s in after.values())
+
+
+def hold_back(effects: list, before: dict, after: dict) -> tuple[list, list]:
+    """``(named, held back)``: the first effect (what costs most to lose) is always named; a
+    further one only when it explains a structure on its own (:func:`on_its_own`). The others
+    stood in for a part of a structure no single term explains: the report puts them under
+    ``unexplained`` with that structure, not among the names (the model keeps their terms)."""
+    named, held = effects[:1], []
+    for e in effects[1:]:
+        (named if on_its_own(e, before, after) else held).append(e)
+    return named, held
+
+
+def confidence(effects: list, held: list, rankings: list, before: dict, after: dict) -> dict:
+    """How sure the verdict is: ``high``, ``moderate`` or ``low``, with the reasons (``before``
+    / ``after``: the located statistics of the baseline and of the final model).
+
+    With an effect named: the best first-round candidate of another effect (the runner-up) and
+    its held-out gain as a share of the named effect's best term's; whether the named effect
+    explains its own structure (its axes significant before, inside their null band after);
+    how many located statistics are still significant after the refit, and what was held back.
+    ``high``: the runner-up below :data:`CLEAR_SHARE`, the structure explained, nothing left;
+    ``low``: the runner-up at :data:`CLOSE_SHARE` or more, or its structure not explained and
+    something held back; otherwise ``moderate``. With nothing named: ``high`` when no candidate
+    gained half of ``naming.MIN_GAIN`` and nothing is located, else ``moderate``."""
+    from .naming import MIN_GAIN
+
+    first = rankings[0] if rankings else []
+    left = sorted(k for k, s in after.items() if s.significant)
+    if not effects:
+        top = max([r["score"] for r in first if r["score"] is not None], default=0.0)
+        level = "high" if top < 0.5 * MIN_GAIN and not left else "moderate"
+        return {"level": level, "best_candidate_gain": round(top, 3), "residual_statistics": left}
+    name = effects[0]["name"]
+    own = [r["score"] for r in first if CATALOGUE[r["name"]].effect == name and r["score"]]
+    other = [r for r in first if CATALOGUE[r["name"]].effect != name and r["score"] is not None]
+    runner = max(other, key=lambda r: r["score"], default=None)
+    best = max(own, default=None)
+    share = None
+    if runner is not None and best is not None and best > 0:
+        share = max(runner["score"], 0.0) / best
+    keys = {k for t in effects[0].get("terms", [name]) for k in CATALOGUE[t].axes}
+    keys |= {w["statistic"] for w in effects[0].get("where", [])}
+    explains = any(
+        k in before and k in after and before[k].significant and not after[k].significant
+        for k in keys
+    )
+    if share is not None and share >= CLOSE_SHARE or (held and not explains):
+        level = "low"
+    elif (share is None or share < CLEAR_SHARE) and explains and not left and not held:
+        level = "high"
+    else:
+        level = "moderate"
+    return {
+        "level": level,
+        "runner_up": None if runner is None else CATALOGUE[runner["name"]].effect,
+        "runner_up_share": None if share is None else round(share, 4),
+        "explains_its_structure": explains,
+        "residual_statistics": left,
+        "held_back": [e["name"] for e in held],
+    }
+
+
+def report_content(
+    effects, fits, rankings, before, after, obs, ctx, replicates: int, held=None
+) -> dict:
+    """The ``report.json`` content (without ``seconds``); ``held``: the effects held back
+    (:func:`hold_back`), reported under ``unexplained``."""
+    held = held or []
     return {
         "effects": [
             {k: e[k] for k in ("name", "terms", "score", "delta_aic", "params", "where") if k in e}
             for e in effects
         ],
-        "verdict": [e["name"] for e in effects] or ["none"],
-        "also_consistent_with": also_consistent(effects, rankings),
+        "verdict": ([e["name"] for e in effects] or ["none"]) + (["unexplained"] if held else []),
+        "confidence": confidence(effects, held, rankings, before, after),
+        "held_back": [
+            {
+                "stood_in_by": e["name"],
+                "terms": e.get("terms", [e["name"]]),
+                "score": e.get("score"),
+                "structure": e.get("where", []),
+            }
+            for e in held
+        ],
+        "also_consistent_with": also_consistent(effects + held, rankings),
         "fit": fits,
         "located_before": located(before, replicates),
         "located_after": located(after, replicates),
