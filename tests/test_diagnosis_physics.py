@@ -162,6 +162,83 @@ def test_a_term_that_does_not_explain_its_own_structure_is_held_back_as_unexplai
     assert hold_back(effects[1:2], before, after) == (effects[1:2], [])
 
 
+def _stat_at(key: str, excess: float, significant: bool):
+    """A located statistic of 12 bins ``excess`` null sds above its (analytic) null mean."""
+    from tof_fpn_torch.diagnosis.locate import Stat
+
+    s = Stat(key, 12.0 + excess * math.sqrt(24.0), 12.0)
+    s.significant = significant
+    s.p = 1e-9 if significant else 0.5
+    return s
+
+
+def test_a_term_that_removes_most_of_a_structure_is_named_though_some_is_left():
+    """A glossy patch's light against the catalogue's relay (the excess of the located
+    statistics, in null sds, of a planted patch's diagnosis): the multipath term removes about
+    three quarters of the amplitude misfit along the amplitude that is there without it; the
+    rest (its form's misfit) stays significant. It explains that structure on its own and is
+    named. A term on an axis whose structure another named term removed (it is barely there
+    with that term in the model and the stand-in dropped) is credited with nothing and held
+    back, though the axis went from significant to cleared since the baseline."""
+    from tof_fpn_torch.diagnosis.summary import (
+        OWN_SHARE,
+        confidence,
+        explained_share,
+        hold_back,
+        on_its_own,
+    )
+
+    before = {
+        "depth_mean|depth": _stat_at("depth_mean|depth", 1030.0, True),
+        "depth_mean|depth_mod": _stat_at("depth_mean|depth_mod", 169.0, True),
+        "amp_mean|amplitude": _stat_at("amp_mean|amplitude", 732.0, True),
+        "depth_mean|amplitude": _stat_at("depth_mean|amplitude", 465.0, True),
+        "amp_mean|pixels": _stat_at("amp_mean|pixels", 199.0, True),
+    }
+    after = {
+        "depth_mean|depth": _stat_at("depth_mean|depth", 106.0, True),
+        "depth_mean|depth_mod": _stat_at("depth_mean|depth_mod", 83.0, True),
+        "amp_mean|amplitude": _stat_at("amp_mean|amplitude", 21.0, True),
+        "depth_mean|amplitude": _stat_at("depth_mean|amplitude", 427.0, True),
+        "amp_mean|pixels": _stat_at("amp_mean|pixels", -0.2, False),
+    }
+    # the final model without multipath (the rest refitted): the amplitude misfit is back
+    without_mp = dict(after)
+    without_mp["amp_mean|amplitude"] = _stat_at("amp_mean|amplitude", 91.0, True)
+    without_mp["depth_mean|depth"] = _stat_at("depth_mean|depth", 110.0, True)
+    without_mp["depth_mean|amplitude"] = _stat_at("depth_mean|amplitude", 365.0, True)
+    mp = {"name": "multipath", "terms": ["multipath_sources"], "score": 1068.0}
+    share = explained_share(mp, without_mp, after)
+    assert share == pytest.approx((91.0 - 21.0) / 91.0, rel=1e-6)
+    assert share >= OWN_SHARE
+    assert on_its_own(mp, before, after, without_mp)
+    # ... without it, the depth along the depth: multipath removes 4 % of it (cyclic_error
+    # does the rest); alone it would not make multipath's own structure
+    assert explained_share(mp, without_mp, after, {"depth_mean|depth"}) < 0.05
+    # a stand-in on the depth along the depth: cleared since the baseline, but the cyclic
+    # error removed it (not significant without the stand-in): held back, as a stand-in that
+    # removes a small part of what is there without it
+    after["depth_mean|depth"] = _stat_at("depth_mean|depth", 1.0, False)
+    without_ab = dict(after)
+    without_ab["depth_mean|depth"] = _stat_at("depth_mean|depth", 1.5, False)
+    ab = {"name": "phase_wrapping", "terms": ["phase_wrapping"], "score": 40.0}
+    assert on_its_own(ab, before, after)  # against the baseline it took the whole structure
+    assert not on_its_own(ab, before, after, without_ab)
+    part = dict(after, **{"depth_mean|depth": _stat_at("depth_mean|depth", 25.0, True)})
+    without_part = dict(part, **{"depth_mean|depth": _stat_at("depth_mean|depth", 30.0, True)})
+    assert not on_its_own(ab, before, part, without_part)  # a sixth of it
+    ce = {"name": "cyclic_error", "terms": ["cyclic_error_series", "cyclic_error"], "score": 1336}
+    pg = {"name": "pixel_gain", "terms": ["pixel_gain"], "score": 651.0}
+    effects = [ce, mp, pg, ab]
+    without = {"multipath": without_mp, "phase_wrapping": without_ab}
+    named, held = hold_back(effects, before, after, without)
+    assert [e["name"] for e in named] == ["cyclic_error", "multipath", "pixel_gain"]
+    assert [e["name"] for e in held] == ["phase_wrapping"]
+    first = [{"name": "cyclic_error_series", "score": 1336.0}, {"name": "multipath", "score": 993}]
+    conf = confidence(named, held, [first], before, after, without)
+    assert conf["explains_its_structure"] and conf["level"] == "moderate"
+
+
 def test_the_report_says_unexplained_and_how_sure():
     """``report.md`` gives the verdict with its confidence and the structure held back."""
     from tof_fpn_torch.diagnosis.report import markdown
