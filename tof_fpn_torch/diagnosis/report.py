@@ -14,6 +14,7 @@ from pathlib import Path
 
 from .naming import FORM_TOLERANCE
 from .persist import model_to_dict
+from .summary import OWN_SHARE
 
 __all__ = ["confidence_text", "markdown", "render", "write_outputs"]
 
@@ -114,7 +115,8 @@ def markdown(report: dict, figures: list[str]) -> str:
             terms = ", ".join(f"`{t}`" for t in h["terms"])
             lines.append(
                 f"- stood in for by {terms} (held-out gain {_num(h['score'])} nats), not named: "
-                "its own statistics are still significant after the refit"
+                f"it removes less than {OWN_SHARE:.0%} of any structure on its axes that is "
+                "there without it"
             )
             for w in h["structure"][:3]:
                 lines.append(f"  - {_where_text(w)}")
