@@ -117,10 +117,10 @@ def _stat(key: str, significant: bool):
 
 
 def test_a_term_that_does_not_explain_its_own_structure_is_held_back_as_unexplained():
-    """Three effects named at once: the first is named; a further one whose own statistics
-    were significant before and are still significant after the refit stood in for a part of a
-    structure it does not explain, and goes under ``unexplained`` (the verdict says so, and how
-    sure it is); one that cleared its own statistic is named."""
+    """Three effects named at once: the first is named; a further one whose own statistic is
+    as far above its null after the refit as before (it removed none of it) stood in for a part
+    of a structure it does not explain, and goes under ``unexplained`` (the verdict says so, and
+    how sure it is); one that cleared its own statistic is named."""
     from tof_fpn_torch.diagnosis.summary import confidence, hold_back, on_its_own
 
     keys = ("depth_mean|pixels", "depth_mean|depth_mod", "amp_mean|radius", "depth_mean|edge")
