@@ -19,11 +19,11 @@ __all__ = [
     "confidence",
     "describe_effects",
     "explained",
+    "explained_share",
     "fit_summary",
     "hold_back",
     "located",
     "on_its_own",
-    "explained_share",
     "report_content",
 ]
 
