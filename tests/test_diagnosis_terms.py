@@ -199,7 +199,7 @@ def test_every_term_declares_the_whole_interface():
         for method in ("simulator_term", "initial_values", "describe"):
             assert getattr(cls, method) is not getattr(Term, method), f"{t.name}.{method}"
         hooks = {
-            "variance": ("depth_variance", "depth_variance_limit", "amplitude_sd"),
+            "variance": ("depth_variance", "depth_variance_limit", "amplitude_sd", "depth_mean_sd"),
             "frames": ("frame_means", "outlier_rate", "depth_tail"),
             "wrap": ("wrap_range",),
         }.get(t.enters, ())

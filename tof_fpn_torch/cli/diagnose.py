@@ -78,7 +78,10 @@ def run(args: argparse.Namespace) -> int:
     from ..diagnosis.report import write_outputs
 
     paths = write_outputs(files, args.out)
-    print(f"verdict: {', '.join(diag.report['verdict'])}")
+    conf = diag.report.get("confidence", {}).get("level")
+    print(
+        f"verdict: {', '.join(diag.report['verdict'])}" + (f" (confidence: {conf})" if conf else "")
+    )
     fb, fa = diag.report["fit"]["before"], diag.report["fit"]["after"]
     print(
         f"held-out NLL {fb['heldout_nll']:.1f} -> {fa['heldout_nll']:.1f} nats; AIC "

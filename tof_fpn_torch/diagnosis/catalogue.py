@@ -60,6 +60,7 @@ from .terms.cyclic_error import CyclicErrorTerm
 from .terms.cyclic_error_series import CyclicErrorSeriesTerm
 from .terms.flying_pixels import FlyingPixelsTerm
 from .terms.fpn_pattern import FPNPatternTerm
+from .terms.fpn_pixel_delays import FPNPixelDelaysTerm
 from .terms.fpn_pixel_offsets import FPNPixelOffsetsTerm
 from .terms.impulsive_pixels import ImpulsivePixelsTerm
 from .terms.mixed_pixels import MixedPixelsTerm
@@ -110,6 +111,7 @@ TERMS: tuple[Term, ...] = (
     NoiseFloorTailsTerm(),
     VignettingFieldTerm(),
     PixelGainRowsTerm(),
+    FPNPixelDelaysTerm(),
 )
 
 #: name -> term

@@ -14,8 +14,9 @@ from pathlib import Path
 
 from .naming import FORM_TOLERANCE
 from .persist import model_to_dict
+from .summary import OWN_SHARE
 
-__all__ = ["markdown", "render", "write_outputs"]
+__all__ = ["confidence_text", "markdown", "render", "write_outputs"]
 
 _FILES = ("report.json", "report.md", "model.json")
 
@@ -92,6 +93,9 @@ def markdown(report: dict, figures: list[str]) -> str:
             )
         lines.append(f"- the baseline holds: {', '.join(held)}")
     lines += ["", f"**Verdict: {', '.join(report['verdict'])}**", ""]
+    conf = report.get("confidence")
+    if conf:
+        lines += [f"Confidence: {confidence_text(conf)}.", ""]
     lines += _effects_md(report)
     fb, fa = report["fit"]["before"], report["fit"]["after"]
     lines += ["## Fit before / after", "", "| | before | after |", "|---|---|---|"]
@@ -105,6 +109,18 @@ def markdown(report: dict, figures: list[str]) -> str:
     ):
         lines.append(f"| {label} | {_num(fb[key], 8)} | {_num(fa[key], 8)} |")
     lines.append("")
+    if report.get("held_back"):
+        lines += ["## Unexplained: structure no single term explains", ""]
+        for h in report["held_back"]:
+            terms = ", ".join(f"`{t}`" for t in h["terms"])
+            lines.append(
+                f"- stood in for by {terms} (held-out gain {_num(h['score'])} nats), not named: "
+                f"it removes less than {OWN_SHARE:.0%} of any structure on its axes that is "
+                "there without it"
+            )
+            for w in h["structure"][:3]:
+                lines.append(f"  - {_where_text(w)}")
+        lines.append("")
     if report["unexplained"]:
         lines += ["## Significant residual no catalogue term explains", ""]
         for w in report["unexplained"][:6]:
@@ -132,6 +148,31 @@ def markdown(report: dict, figures: list[str]) -> str:
     for f in figures:
         lines += [f"![{f}]({f})", ""]
     return "\n".join(lines)
+
+
+def confidence_text(conf: dict) -> str:
+    """The verdict's confidence in words (``report["confidence"]``)."""
+    out = conf["level"]
+    why = []
+    if conf.get("runner_up") is not None and conf.get("runner_up_share") is not None:
+        why.append(
+            f"runner-up `{conf['runner_up']}` gains {conf['runner_up_share']:.0%} as much in the "
+            "first round"
+        )
+    if "explains_its_structure" in conf:
+        why.append(
+            "its located structure is explained"
+            if conf["explains_its_structure"]
+            else "its located structure is not explained"
+        )
+    left = conf.get("residual_statistics") or []
+    if left:
+        why.append(f"{len(left)} statistic(s) still significant after the refit")
+    if conf.get("held_back"):
+        why.append("held back as unexplained: " + ", ".join(f"`{h}`" for h in conf["held_back"]))
+    if "best_candidate_gain" in conf:
+        why.append(f"best candidate gains {conf['best_candidate_gain']:.4g} nats")
+    return out + (f" ({'; '.join(why)})" if why else "")
 
 
 def render(diag, with_figures: bool = True) -> dict[str, bytes]:

@@ -176,7 +176,9 @@ def prune(model, effects: list, obs, ctx):
     costs less than ``naming.MIN_DAIC`` of AIC (a term a later one made redundant), and the terms
     kept are ordered by what their removal costs (``drop_delta_aic``), most first: the term no
     other explains comes first, not the one that happened to win the first round (a term that
-    partly stands in for the true one can gain more there)."""
+    partly stands in for the true one can gain more there). Each effect kept gets the final
+    model without it, the rest refitted, as ``without_model`` (what it explains on its own,
+    ``summary.on_its_own``; not for the report)."""
     nll_cur = evaluate(model, obs, ctx)
     drops: list = []
     while len(effects) > 1:
@@ -195,6 +197,7 @@ def prune(model, effects: list, obs, ctx):
         drops = []
     if not drops:  # one term left: nothing to order
         return model, effects
-    for d_aic, e, _, _ in drops:
+    for d_aic, e, wo, _ in drops:
         e["drop_delta_aic"] = round(d_aic, 3)
+        e["without_model"] = wo
     return model, [e for _, e, _, _ in sorted(drops, key=lambda t: -t[0])]

@@ -21,7 +21,13 @@ from .persist import adapt_model, load_model
 from .poses import one_pose
 from .prediction import predict
 from .rounds import forward, prune
-from .summary import baseline_summary, describe_effects, fit_summary, report_content
+from .summary import (
+    baseline_summary,
+    describe_effects,
+    fit_summary,
+    hold_back,
+    report_content,
+)
 
 __all__ = ["BOOTSTRAP", "Diagnosis", "diagnose"]
 
@@ -80,6 +86,25 @@ def _stats(model, obs, ctx, replicates: int, seed: int) -> dict[str, Stat]:
         bootstrap(model, obs, ctx, st, replicates, seed)
     locate(st)
     return st
+
+
+def _stats_without(effects: list, obs, ctx, after: dict) -> dict:
+    """Effect name -> the located statistics of the final model without the effect, its other
+    terms refitted (``prune``'s ``without_model``, taken off the entries), with the nulls of
+    ``after`` (no new bootstrap: the model differs by one effect)."""
+    out = {}
+    for e in effects:
+        wo = e.pop("without_model", None)
+        if wo is None:
+            continue
+        with torch.no_grad():
+            st = statistics(obs, predict(wo, obs, scene=ctx.scene), ctx)
+        for k, s in st.items():
+            if k in after:
+                s.null = after[k].null
+        locate(st)
+        out[e["name"]] = st
+    return out
 
 
 def _load(recording, scene):
@@ -159,11 +184,15 @@ def diagnose(
         heldout_after = evaluate(train_model, obs, ctx, "test")
         after = _stats(current, obs, ctx, replicates, seed + 7) if effects else before
         describe_effects(effects, current, obs, ctx, before, after)
+        without = _stats_without(effects, obs, ctx, after)
+        effects, held = hold_back(effects, before, after, without)
         fits = {
             "before": fit_summary(base, obs, ctx, nll_base, heldout_before),
             "after": fit_summary(current, obs, ctx, evaluate(current, obs, ctx), heldout_after),
         }
-        report = report_content(effects, fits, rankings, before, after, obs, ctx, replicates)
+        report = report_content(
+            effects, fits, rankings, before, after, obs, ctx, replicates, held, without
+        )
         report["baseline"] = baseline_summary(base)
         report["seconds"] = round(time.perf_counter() - t0, 2)
     return Diagnosis(report, base, current, obs, ctx, before, after, rankings)

@@ -104,7 +104,8 @@ def _ar1(length: int, rho: float, gen: torch.Generator) -> torch.Tensor:
 
 @dataclass
 class FPNPattern(Term):
-    """Column- and row-wise delays (m): the skew of the demodulation clock along its tree.
+    """Column- and row-wise delays (m): the skew of the demodulation clock along its tree; and a
+    delay of each pixel (its own tap timing, a calibration's per-pixel phase offset).
 
     A column ``x`` demodulates ``delta_c(x)`` later, a row ``y`` ``delta_r(y)`` later: the first
     harmonic turns by ``4 pi f (delta_c(x) + delta_r(y)) / c_L``, so the depth moves by that many
@@ -115,6 +116,8 @@ class FPNPattern(Term):
         column_profile, row_profile: explicit delays (m), one per column / row, or ``None``.
         rms_columns, rms_rows: otherwise a random profile of this rms (m) from ``seed``,
             an AR(1) sequence with coefficient ``correlation`` in [0, 1) (0: white).
+        rms_pixels: a random delay of each pixel (m rms, white, from ``seed``; 0: none), the
+            same in every frame.
         correlation: neighbour correlation of the random profiles.
         seed: seed of the random profiles (the same in every frame).
     """
@@ -125,6 +128,7 @@ class FPNPattern(Term):
     rms_rows: float = 0.0
     correlation: float = 0.0
     seed: int = 11
+    rms_pixels: float = 0.0
     name: str = field(default="fpn_pattern", init=False)
 
     def __post_init__(self) -> None:
@@ -133,6 +137,7 @@ class FPNPattern(Term):
     def validate(self) -> FPNPattern:
         _check_range(self.rms_columns, "FPNPattern.rms_columns", 0.0, strict=False, unit=" m")
         _check_range(self.rms_rows, "FPNPattern.rms_rows", 0.0, strict=False, unit=" m")
+        _check_range(self.rms_pixels, "FPNPattern.rms_pixels", 0.0, strict=False, unit=" m")
         c = _check_range(self.correlation, "FPNPattern.correlation", 0.0, strict=False)
         if c >= 1:
             raise ValueError(f"FPNPattern.correlation must be in [0, 1), got {c!r}")
@@ -159,6 +164,10 @@ class FPNPattern(Term):
         _, _, h, w = s.shape
         col, row = self.profiles(h, w, s)
         delay = col.view(1, 1, 1, w) + row.view(1, 1, h, 1)
+        if float(self.rms_pixels) > 0:
+            gen = torch.Generator().manual_seed(int(self.seed) + 1)
+            pix = torch.randn(h, w, generator=gen, dtype=torch.float64).to(s)
+            delay = delay + pix.view(1, 1, h, w) * _num(self.rms_pixels, s)
         state.samples = rotate_fundamental(s, delay * _phase_per_metre(state.camera))
         return state
 

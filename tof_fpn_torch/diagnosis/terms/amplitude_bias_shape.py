@@ -4,7 +4,9 @@ amplitude, piecewise linear in ``ln A`` (a flexible member of the ``amplitude_bi
 A camera's signal-dependent delay has its own curve (an exponential fade, a power law, a knee):
 the catalogue's hyperbola ``b A_ref / (A + A_ref)`` misses most of them. This member fits the
 curve itself: knots ``t_0 < ... < t_K`` at the 2nd, 25th, 50th, 75th and 98th percentile of the
-predicted amplitude (e-) of the depth pixels, and the delay at knot ``j``
+predicted amplitude (e-) of the depth pixels (or, for a bias the weakest pixels carry, at the
+0.5th, 2nd, 5th, 12th and 30th: both sets are starts, the better one kept), and the delay at
+knot ``j``
 
     D_j = b * (w_{j+1} + ... + w_K) / (w_1 + ... + w_K),     w_k >= 0
 
@@ -27,6 +29,9 @@ __all__ = ["KNOT_QUANTILES", "AmplitudeBiasShapeTerm"]
 
 #: quantiles of the predicted amplitude of the depth pixels where the knots sit
 KNOT_QUANTILES: tuple[float, ...] = (0.02, 0.25, 0.5, 0.75, 0.98)
+#: the knots of the starts for a bias the weakest pixels carry (an exponential fade over the
+#: weakest few per cent): the curve falls within the weakest third and is zero above it
+LOW_KNOT_QUANTILES: tuple[float, ...] = (0.005, 0.02, 0.05, 0.12, 0.3)
 _SEGMENTS = len(KNOT_QUANTILES) - 1
 _W = tuple(f"amplitude_bias_shape.w{k}" for k in range(1, _SEGMENTS + 1))
 _KNOTS = tuple(f"amplitude_bias_shape.knot{j}" for j in range(_SEGMENTS + 1))
@@ -46,8 +51,9 @@ def node_delays(v: dict) -> list:
 
 class AmplitudeBiasShapeTerm(Term):
     """Delay ``b`` (m) at the weakest pixels and the segment weights ``w_k``; starts: ``b`` by
-    least squares on the depth residuals for three shapes (even fall, all of it in the weakest
-    quarter, all of it above the median)."""
+    least squares on the depth residuals for three shapes on the spread knots (even fall, all of
+    it in the weakest quarter, all of it above the median) and two on the weak knots (even fall
+    over the weakest 30 %, all of it in the weakest 5 %)."""
 
     name = "amplitude_bias_shape"
     signature = "amplitude_bias"
@@ -69,17 +75,25 @@ class AmplitudeBiasShapeTerm(Term):
         a_e = (pred.a0 * g)[ctx.mask_d]
         if a_e.numel() < 10:
             return []
-        q = [float(x) for x in torch.quantile(a_e, torch.tensor(KNOT_QUANTILES, dtype=a_e.dtype))]
-        for j in range(1, len(q)):  # strictly increasing (a flat amplitude: 1 % apart)
-            q[j] = max(q[j], 1.01 * q[j - 1])
-        knots = dict(zip(_KNOTS, q, strict=True))
         out = []
-        for w in ((1.0, 1.0, 1.0, 1.0), (1.0, 0.05, 0.05, 0.05), (0.05, 0.05, 1.0, 1.0)):
-            v = dict(knots, **dict(zip(_W, w, strict=True)))
-            v["amplitude_bias_shape.delay"] = 1.0
-            shape = self.simulator_term(v, model).bias(a_e)
-            v["amplitude_bias_shape.delay"] = least_squares(shape, rd, wd)
-            out.append(v)
+        for quantiles, shapes in (
+            (
+                KNOT_QUANTILES,
+                ((1.0, 1.0, 1.0, 1.0), (1.0, 0.05, 0.05, 0.05), (0.05, 0.05, 1.0, 1.0)),
+            ),
+            (LOW_KNOT_QUANTILES, ((1.0, 1.0, 1.0, 1.0), (1.0, 1.0, 0.05, 0.05))),
+        ):
+            qs = torch.tensor(quantiles, dtype=a_e.dtype)
+            q = [float(x) for x in torch.quantile(a_e, qs)]
+            for j in range(1, len(q)):  # strictly increasing (a flat amplitude: 1 % apart)
+                q[j] = max(q[j], 1.01 * q[j - 1])
+            knots = dict(zip(_KNOTS, q, strict=True))
+            for w in shapes:
+                v = dict(knots, **dict(zip(_W, w, strict=True)))
+                v["amplitude_bias_shape.delay"] = 1.0
+                shape = self.simulator_term(v, model).bias(a_e)
+                v["amplitude_bias_shape.delay"] = least_squares(shape, rd, wd)
+                out.append(v)
         return out
 
     def describe(self, model, obs, pred) -> dict:

@@ -21,7 +21,7 @@ from ...sim import Saturation
 from ...sim.optics import soft_limit
 from ..params import ParamSpec
 from .base import Term, r4
-from .saturation import START_QUANTILES, clipped_share, start_levels
+from .saturation import START_QUANTILES, clipped_share, pile_description, start_levels
 
 __all__ = ["KNEE_MAX_SHARE", "KNEE_SHARES", "SaturationKneeTerm"]
 
@@ -79,4 +79,5 @@ class SaturationKneeTerm(Term):
             "level_amplitude_units": r4(lv / g),
             # the share of pixels whose largest sample passes the level (a hard clip's share)
             "share_of_pixels_clipped": r4(clipped_share(model, obs, self.name, lv)),
+            **pile_description(obs),
         }
