@@ -13,13 +13,18 @@ leave), the pattern is the maximum a-posteriori estimate
 
     ``min_P  sum_i sum rho((D2 (D_i - P)) / s_i) + |P|^2 / sigma_P^2``
 
-with ``D2`` the second difference along x (columns) or along x and y (pixels), ``s_i`` the noise
+with ``D2`` the second difference along x (columns) or along x and y (pixels), summed with the
+same term for the third difference at a gap of 4 pixels (:data:`GAPS`: it vanishes on a scene's
+steady curvature too and sees the pattern's low frequencies, which the scenes' slopes hide from
+neighbours' second differences), ``s_i`` the noise
 of a second difference (a per-frame ``k_i / A`` model fitted from the data, or one level per frame
 without amplitudes), ``rho`` quadratic first and then Tukey's biweight (edges, kinks and flying
-pixels get weight 0), and the white prior's ``sigma_P^2`` re-estimated from the solution (an
-empirical Bayes iteration: the estimate's power plus its posterior variance, in the diagonal
-approximation; without a pattern it goes to zero). The profiles are solved exactly
-(a pentadiagonal system), the pixel part by conjugate gradients.
+pixels get weight 0; the least-squares start already leaves out differences far beyond the
+frame's spread, :data:`START_CLIP`), and the white prior's ``sigma_P^2`` re-estimated from the
+solution (an empirical Bayes iteration: the estimate's power, measured by its roughness, a white
+profile's second differences having 6 times its variance, plus its posterior variance in the
+diagonal approximation; without a pattern it goes to zero). The profiles are solved exactly
+(a banded system), the pixel part by conjugate gradients.
 
 What a scene can never be told apart from is left out: a smooth pattern (the low frequencies,
 shrunk by the prior) and anything every frame shares because every frame shows the same scene.
