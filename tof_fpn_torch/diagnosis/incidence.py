@@ -1,0 +1,226 @@
+"""The angle of incidence in the baseline's photon model: how much of the camera's light a surface
+catches.
+
+A matte (Lambertian) surface lit by a source beside the lens receives the source's light in
+proportion to the cosine of the angle between its normal and the ray, ``cos theta_inc``: the
+modulated photo-charge of a pixel is ``k rho cos(theta_inc) / d^2`` (Lange, PhD thesis, Siegen
+2000, ch. 2; Hansard et al., *Time-of-Flight Cameras*, Springer 2013, ch. 1). A given scene's
+``reflectance`` is then the surface's albedo, and a floor seen at a grazing angle returns a
+fraction of what a wall facing the camera returns at the same distance. Other scenes (the
+package's simulator among them) state a reflectance that already holds the angle: ``k rho /
+d^2``. The baseline holds either: ``photons.incidence`` = ``gamma`` (1 or 0), the active light
+``k rho cos(theta_inc)^gamma / d^2`` (ambient light, which comes from every direction, keeps
+``rho``).
+
+Without the angle, a scene given as albedo leaves the amplitude of every tilted surface below the
+model's, by up to an order of magnitude at a grazing floor; the only candidate that takes such a
+misfit anywhere in the frame is a random gain per pixel (``pixel_gain``), which is then named for
+a camera that has none.
+
+``cos theta_inc`` comes from the scene's depth map: back-projected through a pinhole of
+horizontal field of view ``photons.field_of_view`` (degrees), the surface normals from one-sided
+differences that cross neither a depth edge nor a corner (:func:`_tangent`). Neither
+value is fitted by the likelihood (a free power of the cosine would take up a share of any other
+smooth amplitude misfit: a vignette, a clip, a bias): :func:`choose_incidence` decides them once,
+before the fit, from the amplitude means against the model without the angle, by the mean
+absolute deviation of the log ratio (robust to the pixels whose normal a depth map cannot give:
+edges, surfaces a few pixels wide). Lambert's law (``gamma = 1``, at the field of view that
+explains the amplitude best) is taken when it leaves at most :data:`LAMBERT_SHARE` of that
+deviation; else the reflectance holds the angle (``gamma = 0``). Where the scene is estimated from
+the recording, its reflectance is taken from the amplitude itself and holds the angle already:
+``gamma = 0``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import torch
+
+from ..sim import Photons
+from ..sim.relay import back_project
+
+__all__ = [
+    "COS_FLOOR",
+    "FIELDS_OF_VIEW",
+    "FOV_KEY",
+    "FOV_STEP",
+    "INCIDENCE_KEY",
+    "LAMBERT_SHARE",
+    "IncidentPhotons",
+    "choose_incidence",
+    "incidence_cosine",
+    "incidence_factor",
+    "incidence_sd",
+    "incidence_spread",
+]
+
+#: the baseline's power of the incidence cosine (0: a reflectance that holds the angle, 1: an
+#: albedo, Lambert's law); chosen from the data, not fitted
+INCIDENCE_KEY: str = "photons.incidence"
+#: the horizontal field of view (degrees) the normals are computed with; chosen, not fitted
+FOV_KEY: str = "photons.field_of_view"
+#: Horizontal fields of view (degrees) the choice tries (ToF cameras' lenses span about 30-130
+#: degrees); the best is then refined in steps of ``FOV_STEP`` degrees around it (a normal's
+#: angle moves with the field of view: 55 instead of 70 degrees errs by 10-20 % in the cosine of
+#: a floor).
+FIELDS_OF_VIEW: tuple[float, ...] = tuple(float(x) for x in range(30, 131, 10))
+FOV_STEP: float = 2.0
+#: The smallest cosine taken: a surface seen at a grazing angle (or a normal from a depth map
+#: too noisy to trust) does not take the pixel's light to zero.
+COS_FLOOR: float = 0.05
+#: Lambert's law is taken when the mean absolute deviation of the log amplitude ratio with the
+#: angle is at most this share of that without it (a power of the field angle such as a cos^4
+#: vignette on a wall facing the camera leaves 3/4 of it).
+LAMBERT_SHARE: float = 0.5
+#: The amplitude ratios of pixels darker than this share of the median amplitude do not enter the
+#: choice (their noise dominates the log ratio).
+_DIM_SHARE: float = 0.2
+
+#: the last ``(depth map, fov, (cosines, spreads))``: the cosines of a scene are computed once per field
+#: of view (every prediction needs them); the entry holds the depth map, so no other map can
+#: take its address while it lives
+_COS: list = [None]
+
+
+def incidence_cosine(depth: torch.Tensor, fov_deg: float) -> torch.Tensor:
+    """``cos theta_inc`` (H, W), float64, in ``[COS_FLOOR, 1]`` of the radial ``depth`` map
+    (H, W) seen through a pinhole of horizontal field of view ``fov_deg``."""
+    return _cosines(depth, fov_deg)[0]
+
+
+def incidence_spread(depth: torch.Tensor, fov_deg: float) -> torch.Tensor:
+    """How far (H, W) the log cosine of :func:`incidence_cosine` can be off where the depth map
+    leaves a pixel's surface open: the range of ``log cos`` over the normals from the forward and
+    the backward differences along either axis. 0 inside a plane (every difference lies in it);
+    at a corner or an edge, the pixel may lie on either side."""
+    return _cosines(depth, fov_deg)[1]
+
+
+def _cosines(depth: torch.Tensor, fov_deg: float) -> tuple[torch.Tensor, torch.Tensor]:
+    entry = _COS[0]  # one read: another thread may replace the entry meanwhile
+    if entry is not None and entry[1] == fov_deg and (entry[0] is depth or _same(entry[0], depth)):
+        return entry[2]
+    d = depth.detach().to(torch.float64)
+    pts = back_project(d, fov_deg)
+    ray = pts / pts.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+    def cos(tx: torch.Tensor, ty: torch.Tensor) -> torch.Tensor:
+        n = torch.linalg.cross(tx, ty)
+        n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        c = (n * ray).sum(-1).abs().clamp(COS_FLOOR, 1.0)
+        return torch.where(torch.isfinite(c), c, torch.ones_like(c))
+
+    (tx, fx, bx), (ty, fy, by) = _tangent(pts, 1), _tangent(pts, 0)
+    c = cos(tx, ty)
+    logs = torch.stack([torch.log(cos(a, b)) for a in (fx, bx) for b in (fy, by)])
+    spread = logs.max(0).values - logs.min(0).values
+    out = (c, spread)
+    _COS[0] = (depth, fov_deg, out)
+    return out
+
+
+def _tangent(pts: torch.Tensor, axis: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(step, forward, backward)``: the step to the next pixel along ``axis`` (0: rows, 1:
+    columns) on the pixel's own surface, and the two differences it is chosen from: the one that
+    the difference beyond it continues (the smaller second difference). A difference across an occluding edge jumps, and
+    one across a corner bends; the side that does neither lies on the pixel's surface (a floor
+    seen at a grazing angle has large steps, so the smaller step of the two would cross the
+    corner to the wall)."""
+    n = pts.shape[axis]
+    fwd = torch.roll(pts, -1, axis) - pts
+    if n < 3:
+        fwd = fwd if n > 1 else torch.zeros_like(pts)
+        return fwd, fwd, fwd
+    fwd2 = torch.roll(fwd, -1, axis)
+    bwd = torch.roll(fwd, 1, axis)
+    bwd2 = torch.roll(fwd, 2, axis)
+    ef = (fwd2 - fwd).norm(dim=-1)
+    eb = (bwd - bwd2).norm(dim=-1)
+    idx = torch.arange(n)
+    shape = (-1, 1) if axis == 0 else (1, -1)
+    ef = torch.where((idx >= n - 2).view(shape), torch.inf, ef)  # no second step ahead
+    eb = torch.where((idx <= 1).view(shape), torch.inf, eb)  # ... or behind
+    both_out = torch.isinf(ef) & torch.isinf(eb)
+    use_fwd = (ef <= eb) & ~((idx == n - 1).view(shape))
+    use_fwd = torch.where(both_out, (idx < n - 1).view(shape).expand_as(use_fwd), use_fwd)
+    first, last = (idx == 0).view(*shape, 1), (idx == n - 1).view(*shape, 1)
+    fwd, bwd = torch.where(last, bwd, fwd), torch.where(first, fwd, bwd)  # no wrap at the border
+    return torch.where(use_fwd.unsqueeze(-1), fwd, bwd), fwd, bwd
+
+
+def _same(a: torch.Tensor, b: torch.Tensor) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and bool(torch.equal(a, b))
+
+
+def incidence_factor(scene, v: dict):
+    """The factor ``cos(theta_inc)^gamma`` (1, 1, H, W) of the active light of ``scene`` (a
+    simulator :class:`~tof_fpn_torch.sim.Scene` of one image) for the values ``v``; None where
+    the model holds no angle (``gamma`` absent or 0)."""
+    gamma = float(v.get(INCIDENCE_KEY, 0.0))
+    fov = v.get(FOV_KEY)
+    if gamma == 0.0 or fov is None:
+        return None
+    c = incidence_cosine(scene.depth[0, 0], float(fov))
+    out = c if gamma == 1.0 else torch.exp(gamma * torch.log(c))
+    return out.to(scene.depth.dtype).view(1, 1, *out.shape)
+
+
+def incidence_sd(scene, v: dict, mu_a):
+    """The sd (H, W) of the amplitude means ``mu_a`` that the angle leaves open where the depth
+    map cannot tell a pixel's surface (:func:`incidence_spread`, a random effect fixed in time
+    like a pixel's gain); None where the model holds no angle."""
+    gamma = float(v.get(INCIDENCE_KEY, 0.0))
+    fov = v.get(FOV_KEY)
+    if gamma == 0.0 or fov is None:
+        return None
+    return gamma * incidence_spread(scene.depth[0, 0], float(fov)).to(mu_a.dtype) * mu_a
+
+
+def choose_incidence(obs, a0: torch.Tensor, ok: torch.Tensor) -> dict:
+    """``{INCIDENCE_KEY, FOV_KEY}`` from the observed amplitude means against the model's ``a0``
+    without the angle (H, W) on the pixels ``ok`` (module docstring): the mean absolute deviation
+    of ``log(m_a / a0)`` from its median, as it is and with ``log cos`` taken off at each field
+    of view of :data:`FIELDS_OF_VIEW` (then refined around the best)."""
+    none = {INCIDENCE_KEY: 0.0, FOV_KEY: FIELDS_OF_VIEW[len(FIELDS_OF_VIEW) // 2]}
+    ok = ok & (a0 > 0) & (obs.m_a > 0) & obs.known
+    if int(ok.sum()) < 16:
+        return none
+    ok = ok & (obs.m_a > _DIM_SHARE * obs.m_a[ok].median())
+    y = torch.log(obs.m_a[ok] / a0[ok])
+
+    def deviation(r: torch.Tensor) -> float:
+        return float((r - r.median()).abs().mean())
+
+    def lambert(fov: float) -> tuple[float, float]:
+        return deviation(y - torch.log(incidence_cosine(obs.scene_depth, fov))[ok]), fov
+
+    best = min(lambert(f) for f in FIELDS_OF_VIEW)
+    step = FIELDS_OF_VIEW[1] - FIELDS_OF_VIEW[0]
+    fine = [best[1] - step + FOV_STEP * i for i in range(int(round(2 * step / FOV_STEP)) + 1)]
+    best = min([best, *(lambert(f) for f in fine if 0.0 < f < 180.0)])
+    if best[0] > LAMBERT_SHARE * deviation(y):
+        return none
+    return {INCIDENCE_KEY: 1.0, FOV_KEY: best[1]}
+
+
+@dataclass
+class IncidentPhotons(Photons):
+    """The simulator's :class:`~tof_fpn_torch.sim.Photons` with the active light of every pixel
+    times ``cos(theta_inc)^incidence`` (module docstring), the cosines from the scene's depth
+    through a pinhole of horizontal field of view ``field_of_view`` (degrees): the baseline's
+    photon model as a simulator term (its parametric bootstrap, ``model.json``)."""
+
+    incidence: float = 0.0
+    field_of_view: float = 70.0
+    name: str = field(default="photons", init=False)
+
+    def mean_samples(self, camera, scene) -> torch.Tensor:
+        if float(self.incidence) == 0.0:
+            return Photons.mean_samples(self, camera, scene)
+        ambient = Photons.mean_samples(self, replace(camera, illumination_power=0.0), scene)
+        active = Photons.mean_samples(self, replace(camera, ambient_irradiance=0.0), scene)
+        gamma, fov = float(self.incidence), float(self.field_of_view)
+        cos = [incidence_cosine(d[0], fov) for d in scene.depth]
+        factor = torch.stack([c if gamma == 1.0 else torch.exp(gamma * torch.log(c)) for c in cos])
+        return ambient + active * factor[:, None].to(active.dtype)
