@@ -15,7 +15,7 @@ import torch
 
 from .. import constants as K
 from .data import Observations
-from .incidence import INCIDENCE_KEY, choose_incidence
+from .incidence import FOV_KEY, INCIDENCE_KEY, choose_incidence
 from .likelihood import Context, n_observations, nll
 from .model import DiagnosisModel
 from .params import from_u, to_u
@@ -69,6 +69,11 @@ def init_model(obs: Observations, scene) -> DiagnosisModel:
         values.update(choose_incidence(obs, p.a0, ok & (not obs.scene_estimated)))
         if values[INCIDENCE_KEY] != 0.0:
             p = predict(model, obs, scene=scene)
+            obs.notes.append(
+                "the scene's reflectance is taken as albedo: the baseline holds the angle of "
+                "incidence (Lambert's law, normals from the scene's depth through a pinhole of "
+                f"{values[FOV_KEY]:.0f} deg horizontal field of view)"
+            )
         k = float((obs.m_a[ok] / p.a0[ok]).median())
         a0 = p.a0 * k
         off = p.offset * k
