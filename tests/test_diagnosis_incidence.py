@@ -22,6 +22,7 @@ from tof_fpn_torch.diagnosis.incidence import (
     INCIDENCE_KEY,
     choose_incidence,
     incidence_cosine,
+    incidence_spread,
 )
 from tof_fpn_torch.io import Recording, SceneData
 
@@ -115,6 +116,21 @@ def test_incidence_cosine_of_a_depth_map_is_the_surfaces():
     assert np.percentile(np.abs(np.log(c / cos_inc)), 95) < 0.02
     wrong = incidence_cosine(torch.from_numpy(r), 45.0).numpy()
     assert np.median(np.abs(np.log(wrong / cos_inc))) > 0.05
+
+
+def test_the_spread_covers_the_pixels_whose_surface_is_open():
+    """Where the depth map leaves a pixel's surface open (the corners of the room), the spread of
+    the candidate normals' log cosines covers the error of the chosen one; inside the planes it
+    is 0."""
+    r, _, cos_inc = _room(H, W, FOV_DEG)
+    depth = torch.from_numpy(r)
+    err = np.abs(np.log(incidence_cosine(depth, FOV_DEG).numpy() / cos_inc))
+    spread = incidence_spread(depth, FOV_DEG).numpy()
+    bad = err > 0.02
+    assert bad.sum() >= 3  # the room's corners
+    assert (spread[bad] >= err[bad] - 1e-9).all()
+    assert np.median(spread) < 1e-9
+    assert (spread > 0.02).mean() < 0.1
 
 
 def test_the_choice_finds_the_angle_and_the_field_of_view():
