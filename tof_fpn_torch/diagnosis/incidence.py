@@ -33,6 +33,7 @@ the recording, its reflectance is taken from the amplitude itself and holds the 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -47,6 +48,7 @@ __all__ = [
     "FOV_STEP",
     "INCIDENCE_KEY",
     "LAMBERT_SHARE",
+    "OPEN_BEND",
     "IncidentPhotons",
     "choose_incidence",
     "incidence_cosine",
@@ -69,6 +71,10 @@ FOV_STEP: float = 2.0
 #: The smallest cosine taken: a surface seen at a grazing angle (or a normal from a depth map
 #: too noisy to trust) does not take the pixel's light to zero.
 COS_FLOOR: float = 0.05
+#: A pixel's surface is open along an axis when the second difference on its chosen side exceeds
+#: this share of the step (a plane seen in perspective bends its steps by some 10-15 % at a
+#: grazing angle, a sphere ten pixels across by some 10 %; an edge or a corner by the whole step).
+OPEN_BEND: float = 0.5
 #: Lambert's law is taken when the mean absolute deviation of the log amplitude ratio with the
 #: angle is at most this share of that without it (a power of the field angle such as a cos^4
 #: vignette on a wall facing the camera leaves 3/4 of it).
@@ -93,7 +99,9 @@ def incidence_spread(depth: torch.Tensor, fov_deg: float) -> torch.Tensor:
     """How far (H, W) the log cosine of :func:`incidence_cosine` can be off where the depth map
     leaves a pixel's surface open: the range of ``log cos`` over the normals from the forward and
     the backward differences along either axis. 0 inside a plane (every difference lies in it);
-    at a corner or an edge, the pixel may lie on either side."""
+    on a curved surface about the change of the normal from one pixel to the next; at a corner
+    or an edge, the pixel may lie on either side; where neither side lies on a surface with the
+    pixel (:func:`_tangent`), ``-log COS_FLOOR``: any angle."""
     return _cosines(depth, fov_deg)[1]
 
 
@@ -111,27 +119,35 @@ def _cosines(depth: torch.Tensor, fov_deg: float) -> tuple[torch.Tensor, torch.T
         c = (n * ray).sum(-1).abs().clamp(COS_FLOOR, 1.0)
         return torch.where(torch.isfinite(c), c, torch.ones_like(c))
 
-    (tx, fx, bx), (ty, fy, by) = _tangent(pts, 1), _tangent(pts, 0)
+    (tx, fx, bx, ox), (ty, fy, by, oy) = _tangent(pts, 1), _tangent(pts, 0)
     c = cos(tx, ty)
     logs = torch.stack([torch.log(cos(a, b)) for a in (fx, bx) for b in (fy, by)])
     spread = logs.max(0).values - logs.min(0).values
+    # a pixel whose surface the depth map does not give: any angle
+    spread = torch.where(ox | oy, torch.full_like(spread, -math.log(COS_FLOOR)), spread)
     out = (c, spread)
     _COS[0] = (depth, fov_deg, out)
     return out
 
 
-def _tangent(pts: torch.Tensor, axis: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(step, forward, backward)``: the step to the next pixel along ``axis`` (0: rows, 1:
-    columns) on the pixel's own surface, and the two differences it is chosen from: the one that
-    the difference beyond it continues (the smaller second difference). A difference across an occluding edge jumps, and
-    one across a corner bends; the side that does neither lies on the pixel's surface (a floor
-    seen at a grazing angle has large steps, so the smaller step of the two would cross the
-    corner to the wall)."""
+def _tangent(pts: torch.Tensor, axis: int):
+    """``(step, forward, backward, open)`` along ``axis`` (0: rows, 1: columns) of the points
+    (H, W, 3): the step to the next pixel on the pixel's own surface; the two differences it is
+    chosen from (at the border of the frame the missing one extrapolated from the two steps
+    inside, so that their spread shows a curved surface there too); and where neither of them
+    lies on a surface with the pixel (``open``).
+
+    The step is the difference that the difference beyond it continues (the smaller second
+    difference): a difference across an occluding edge jumps, and one across a corner bends; the
+    side that does neither lies on the pixel's surface (a floor seen at a grazing angle has large
+    steps, so the smaller step of the two would cross the corner to the wall). Where even that
+    side's second difference exceeds :data:`OPEN_BEND` times the step (a surface a pixel wide,
+    a pixel between two edges), the depth map does not give the pixel's surface."""
     n = pts.shape[axis]
     fwd = torch.roll(pts, -1, axis) - pts
     if n < 3:
         fwd = fwd if n > 1 else torch.zeros_like(pts)
-        return fwd, fwd, fwd
+        return fwd, fwd, fwd, torch.zeros(pts.shape[:2], dtype=torch.bool)
     fwd2 = torch.roll(fwd, -1, axis)
     bwd = torch.roll(fwd, 1, axis)
     bwd2 = torch.roll(fwd, 2, axis)
@@ -141,12 +157,14 @@ def _tangent(pts: torch.Tensor, axis: int) -> tuple[torch.Tensor, torch.Tensor, 
     shape = (-1, 1) if axis == 0 else (1, -1)
     ef = torch.where((idx >= n - 2).view(shape), torch.inf, ef)  # no second step ahead
     eb = torch.where((idx <= 1).view(shape), torch.inf, eb)  # ... or behind
-    both_out = torch.isinf(ef) & torch.isinf(eb)
-    use_fwd = (ef <= eb) & ~((idx == n - 1).view(shape))
-    use_fwd = torch.where(both_out, (idx < n - 1).view(shape).expand_as(use_fwd), use_fwd)
-    first, last = (idx == 0).view(*shape, 1), (idx == n - 1).view(*shape, 1)
-    fwd, bwd = torch.where(last, bwd, fwd), torch.where(first, fwd, bwd)  # no wrap at the border
-    return torch.where(use_fwd.unsqueeze(-1), fwd, bwd), fwd, bwd
+    first, last = (idx == 0).view(shape), (idx == n - 1).view(shape)
+    use_fwd = ((ef <= eb) & ~last) | first
+    fwd = torch.where(last.unsqueeze(-1), 2 * bwd - bwd2, fwd)  # no wrap at the border
+    bwd = torch.where(first.unsqueeze(-1), 2 * fwd - fwd2, bwd)
+    step = torch.where(use_fwd.unsqueeze(-1), fwd, bwd)
+    bend = torch.where(use_fwd, ef, eb)
+    bend = torch.where(first, (fwd2 - fwd).norm(dim=-1), torch.where(last, eb, bend))
+    return step, fwd, bwd, bend > OPEN_BEND * step.norm(dim=-1)
 
 
 def _same(a: torch.Tensor, b: torch.Tensor) -> bool:
