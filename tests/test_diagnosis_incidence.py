@@ -133,6 +133,26 @@ def test_the_spread_covers_the_pixels_whose_surface_is_open():
     assert (spread > 0.02).mean() < 0.1
 
 
+def test_a_pixel_between_two_edges_is_open():
+    """A post one pixel wide in front of a wall: along the row neither difference of its pixels
+    lies on their surface, so their light is open (any angle) and they leave the likelihood; the
+    wall's pixels beside it, whose other side lies on the wall, are not."""
+    from tof_fpn_torch.diagnosis.incidence import FOV_KEY as FOV
+    from tof_fpn_torch.diagnosis.incidence import incidence_open
+    from tof_fpn_torch.sim import Scene
+
+    r, _, _ = _room(H, W, FOV_DEG)
+    post = r.copy()
+    post[:, 20] = 1.5
+    scene = Scene(torch.from_numpy(post)[None, None], torch.full((1, 1, H, W), 0.5))
+    v = {INCIDENCE_KEY: 1.0, FOV: FOV_DEG}
+    is_open = incidence_open(scene, v).numpy()
+    assert is_open[:, 20].all()
+    assert not is_open[:, 19].any() and not is_open[:, 21].any()
+    assert is_open.mean() < 0.1
+    assert incidence_open(scene, {INCIDENCE_KEY: 0.0, FOV: FOV_DEG}) is None
+
+
 def test_the_choice_finds_the_angle_and_the_field_of_view():
     """The amplitude of the albedo scene against ``rho / d^2`` points at Lambert's law at about
     the camera's field of view; against ``rho cos / d^2`` (a reflectance that holds the angle)

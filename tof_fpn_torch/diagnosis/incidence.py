@@ -53,6 +53,7 @@ __all__ = [
     "choose_incidence",
     "incidence_cosine",
     "incidence_factor",
+    "incidence_open",
     "incidence_sd",
     "incidence_spread",
 ]
@@ -182,6 +183,18 @@ def incidence_factor(scene, v: dict):
     c = incidence_cosine(scene.depth[0, 0], float(fov))
     out = c if gamma == 1.0 else torch.exp(gamma * torch.log(c))
     return out.to(scene.depth.dtype).view(1, 1, *out.shape)
+
+
+def incidence_open(scene, v: dict):
+    """Where (H, W) the depth map gives no surface for the pixel (:func:`incidence_spread` is
+    ``-log COS_FLOOR``): the model cannot say how much of the light it catches, nor, with it,
+    the noise of its depth; None where the model holds no angle. These pixels do not enter the
+    likelihood (their prediction is any value)."""
+    gamma = float(v.get(INCIDENCE_KEY, 0.0))
+    fov = v.get(FOV_KEY)
+    if gamma == 0.0 or fov is None:
+        return None
+    return incidence_spread(scene.depth[0, 0], float(fov)) >= -math.log(COS_FLOOR) - 1e-9
 
 
 def incidence_sd(scene, v: dict, mu_a):
