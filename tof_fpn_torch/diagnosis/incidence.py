@@ -17,17 +17,17 @@ model's, by up to an order of magnitude at a grazing floor; the only candidate t
 misfit anywhere in the frame is a random gain per pixel (``pixel_gain``), which is then named for
 a camera that has none.
 
-``cos theta_inc`` comes from the scene's depth map: back-projected through a pinhole of
-horizontal field of view ``photons.field_of_view`` (degrees), the surface normals from one-sided
-differences that cross neither a depth edge nor a corner (:func:`_tangent`). Neither
-value is fitted by the likelihood (a free power of the cosine would take up a share of any other
-smooth amplitude misfit: a vignette, a clip, a bias): :func:`choose_incidence` decides them once,
-before the fit, from the amplitude means against the model without the angle, by the mean
-absolute deviation of the log ratio (robust to the pixels whose normal a depth map cannot give:
-edges, surfaces a few pixels wide). Lambert's law (``gamma = 1``, at the field of view that
-explains the amplitude best) is taken when it leaves at most :data:`LAMBERT_SHARE` of that
-deviation; else the reflectance holds the angle (``gamma = 0``). Where the scene is estimated from
-the recording, its reflectance is taken from the amplitude itself and holds the angle already:
+``cos theta_inc`` comes from the scene's depth map: back-projected through a pinhole of horizontal
+field of view ``photons.field_of_view`` (degrees), the surface normals from one-sided differences
+that cross neither a depth edge nor a corner (:func:`_tangent`). Neither value is fitted by the
+likelihood (a free power of the cosine would take up a share of any other smooth amplitude misfit:
+a vignette, a clip, a bias): :func:`choose_incidence` decides them once, before the fit, from the
+amplitude means against the model without the angle, by the median absolute deviation of the log
+ratio (robust to the pixels whose normal a depth map cannot give, edges and surfaces a few pixels
+wide, and to clipped or otherwise spoilt pixels). Lambert's law (``gamma = 1``, at the field of
+view that explains the amplitude best) is taken when it leaves at most :data:`LAMBERT_SHARE` of
+that deviation; else the reflectance holds the angle (``gamma = 0``). Where the scene is estimated
+from the recording, its reflectance is taken from the amplitude itself and holds the angle already:
 ``gamma = 0``.
 """
 
@@ -76,7 +76,7 @@ COS_FLOOR: float = 0.05
 #: this share of the step (a plane seen in perspective bends its steps by some 10-15 % at a
 #: grazing angle, a sphere ten pixels across by some 10 %; an edge or a corner by the whole step).
 OPEN_BEND: float = 0.5
-#: Lambert's law is taken when the mean absolute deviation of the log amplitude ratio with the
+#: Lambert's law is taken when the median absolute deviation of the log amplitude ratio with the
 #: angle is at most this share of that without it (a power of the field angle such as a cos^4
 #: vignette on a wall facing the camera leaves 3/4 of it).
 LAMBERT_SHARE: float = 0.5
@@ -210,8 +210,8 @@ def incidence_sd(scene, v: dict, mu_a):
 
 def choose_incidence(obs, a0: torch.Tensor, ok: torch.Tensor) -> dict:
     """``{INCIDENCE_KEY, FOV_KEY}`` from the observed amplitude means against the model's ``a0``
-    without the angle (H, W) on the pixels ``ok`` (module docstring): the mean absolute deviation
-    of ``log(m_a / a0)`` from its median, as it is and with ``log cos`` taken off at each field
+    without the angle (H, W) on the pixels ``ok`` (module docstring): the median absolute
+    deviation of ``log(m_a / a0)`` from its median, as it is and with ``log cos`` taken off at each field
     of view of :data:`FIELDS_OF_VIEW` (then refined around the best)."""
     none = {INCIDENCE_KEY: 0.0, FOV_KEY: FIELDS_OF_VIEW[len(FIELDS_OF_VIEW) // 2]}
     ok = ok & (a0 > 0) & (obs.m_a > 0) & obs.known
@@ -221,7 +221,7 @@ def choose_incidence(obs, a0: torch.Tensor, ok: torch.Tensor) -> dict:
     y = torch.log(obs.m_a[ok] / a0[ok])
 
     def deviation(r: torch.Tensor) -> float:
-        return float((r - r.median()).abs().mean())
+        return float((r - r.median()).abs().median())
 
     def lambert(fov: float) -> tuple[float, float]:
         return deviation(y - torch.log(incidence_cosine(obs.scene_depth, fov))[ok]), fov
@@ -229,7 +229,8 @@ def choose_incidence(obs, a0: torch.Tensor, ok: torch.Tensor) -> dict:
     best = min(lambert(f) for f in FIELDS_OF_VIEW)
     step = FIELDS_OF_VIEW[1] - FIELDS_OF_VIEW[0]
     fine = [best[1] - step + FOV_STEP * i for i in range(int(round(2 * step / FOV_STEP)) + 1)]
-    best = min([best, *(lambert(f) for f in fine if 0.0 < f < 180.0)])
+    lo, hi = FIELDS_OF_VIEW[0], FIELDS_OF_VIEW[-1]
+    best = min([best, *(lambert(f) for f in fine if lo <= f <= hi)])
     if best[0] > LAMBERT_SHARE * deviation(y):
         return none
     return {INCIDENCE_KEY: 1.0, FOV_KEY: best[1]}
