@@ -84,9 +84,9 @@ LAMBERT_SHARE: float = 0.5
 #: choice (their noise dominates the log ratio).
 _DIM_SHARE: float = 0.2
 
-#: the last ``(depth map, fov, (cosines, spreads))``: the cosines of a scene are computed once per field
-#: of view (every prediction needs them); the entry holds the depth map, so no other map can
-#: take its address while it lives
+#: the last ``(depth map, fov, (cosines, spreads))``: the cosines of a scene are computed once
+#: per field of view (every prediction needs them); the entry holds the depth map, so no other
+#: map can take its address while it lives
 _COS: list = [None]
 
 
@@ -211,8 +211,8 @@ def incidence_sd(scene, v: dict, mu_a):
 def choose_incidence(obs, a0: torch.Tensor, ok: torch.Tensor) -> dict:
     """``{INCIDENCE_KEY, FOV_KEY}`` from the observed amplitude means against the model's ``a0``
     without the angle (H, W) on the pixels ``ok`` (module docstring): the median absolute
-    deviation of ``log(m_a / a0)`` from its median, as it is and with ``log cos`` taken off at each field
-    of view of :data:`FIELDS_OF_VIEW` (then refined around the best)."""
+    deviation of ``log(m_a / a0)`` from its median, as it is and with ``log cos`` taken off at
+    each field of view of :data:`FIELDS_OF_VIEW` (then refined around the best)."""
     none = {INCIDENCE_KEY: 0.0, FOV_KEY: FIELDS_OF_VIEW[len(FIELDS_OF_VIEW) // 2]}
     ok = ok & (a0 > 0) & (obs.m_a > 0) & obs.known
     if int(ok.sum()) < 16:
