@@ -125,7 +125,8 @@ def _cosines(depth: torch.Tensor, fov_deg: float) -> tuple[torch.Tensor, torch.T
     logs = torch.stack([torch.log(cos(a, b)) for a in (fx, bx) for b in (fy, by)])
     spread = logs.max(0).values - logs.min(0).values
     # a pixel whose surface the depth map does not give: any angle
-    spread = torch.where(ox | oy, torch.full_like(spread, -math.log(COS_FLOOR)), spread)
+    unknown = ox | oy | ~torch.isfinite(spread)
+    spread = torch.where(unknown, torch.full_like(spread, -math.log(COS_FLOOR)), spread)
     out = (c, spread)
     _COS[0] = (depth, fov_deg, out)
     return out
