@@ -58,6 +58,7 @@ __all__ = [
     "incidence_open",
     "incidence_sd",
     "incidence_spread",
+    "open_light",
 ]
 
 #: the baseline's power of the incidence cosine (0: a reflectance that holds the angle, 1: an
@@ -202,6 +203,25 @@ def incidence_open(scene, v: dict):
     if gamma == 0.0 or fov is None:
         return None
     return incidence_spread(scene.depth[0, 0], float(fov)) >= -math.log(COS_FLOOR) - 1e-9
+
+
+def open_light(scene, v: dict, obs, mu_a):
+    """The light (H, W) that a pixel whose surface the depth map leaves open catches, relative to
+    the model's: the observed amplitude mean over ``mu_a``, within ``exp(+-spread)``
+    (:func:`incidence_spread`), 1 where the surface is plain or nothing was observed; None where
+    the model holds no angle. The depth noise of such a pixel follows its own light (eq. 2), not
+    the model's guess of it: the angle is a nuisance of the pixel, estimated from its amplitude
+    (the amplitude mean itself keeps the random effect of :func:`incidence_sd`)."""
+    gamma = float(v.get(INCIDENCE_KEY, 0.0))
+    fov = v.get(FOV_KEY)
+    if gamma == 0.0 or fov is None:
+        return None
+    sp = gamma * incidence_spread(scene.depth[0, 0], float(fov)).to(torch.float64)
+    mu = mu_a.detach().to(torch.float64)
+    ratio = obs.m_a / mu.clamp_min(1e-12)
+    seen = (obs.n > 0) & (mu > 0) & torch.isfinite(ratio) & (ratio > 0)
+    ratio = torch.where(seen, ratio, torch.ones_like(ratio))
+    return torch.minimum(torch.maximum(ratio, torch.exp(-sp)), torch.exp(sp))
 
 
 def incidence_sd(scene, v: dict, mu_a):

@@ -20,7 +20,7 @@ import torch
 
 from .. import constants as K
 from ..sim import STAGE, Camera, Photons, SimState, depth_from_samples
-from .incidence import incidence_factor, incidence_sd
+from .incidence import incidence_factor, incidence_sd, open_light
 from .noise import decode_flat_safe, noise_law
 from .readout import apply_readout
 from .terms.base import Chain
@@ -167,6 +167,9 @@ def predict(model, obs, v: dict | None = None, scene=None) -> Prediction:
         mu_d = torch.remainder(mu_d, wrap)
     a0 = a0.clamp_min(1e-9)
     mu_a, sd_a, var_d, s = noise_law(cam, v, dn, a0, offset, chain.sample_var)
+    light = open_light(scene, v, obs, mu_a)  # where the angle leaves a pixel's light open
+    if light is not None:
+        var_d = var_d / light**2
     var_d = _terms_depth_variance(model, v, var_d + obs.q_depth**2 / 12.0, r_cam)
     if wrap is None:
         mu_d = _boundary_side(mu_d, var_d, obs, r_cam)
