@@ -153,6 +153,34 @@ def test_a_pixel_between_two_edges_is_open():
     assert incidence_open(scene, {INCIDENCE_KEY: 0.0, FOV: FOV_DEG}) is None
 
 
+def test_the_depth_noise_of_an_open_pixel_follows_its_own_light():
+    """Inside a plane the model's light stands (1); at a corner pixel, whose face the depth map
+    leaves open, the observed amplitude over the model's, within the spread of its candidate
+    angles."""
+    from types import SimpleNamespace
+
+    from tof_fpn_torch.diagnosis.incidence import FOV_KEY as FOV
+    from tof_fpn_torch.diagnosis.incidence import open_light
+    from tof_fpn_torch.sim import Scene
+
+    r, _, _ = _room(H, W, FOV_DEG)
+    depth = torch.from_numpy(r)
+    scene = Scene(depth[None, None], torch.full((1, 1, H, W), 0.5))
+    spread = incidence_spread(depth, FOV_DEG)
+    mu_a = torch.full((H, W), 100.0, dtype=torch.float64)
+    obs = SimpleNamespace(m_a=torch.full((H, W), 40.0, dtype=torch.float64), n=torch.ones(H, W))
+    light = open_light(scene, {INCIDENCE_KEY: 1.0, FOV: FOV_DEG}, obs, mu_a)
+    plain = spread < 1e-9
+    assert plain.float().mean() > 0.8
+    assert torch.allclose(light[plain], torch.ones_like(light[plain]))
+    wide = spread > -math.log(0.4)
+    assert wide.any()
+    assert torch.allclose(light[wide], torch.full_like(light[wide], 0.4))
+    some = (spread > 0.01) & (spread < 0.5)
+    assert torch.allclose(light[some], torch.exp(-spread[some]))
+    assert open_light(scene, {INCIDENCE_KEY: 0.0, FOV: FOV_DEG}, obs, mu_a) is None
+
+
 def test_the_choice_finds_the_angle_and_the_field_of_view():
     """The amplitude of the albedo scene against ``rho / d^2`` points at Lambert's law at about
     the camera's field of view; against ``rho cos / d^2`` (a reflectance that holds the angle)
