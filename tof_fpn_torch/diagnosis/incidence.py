@@ -51,6 +51,7 @@ __all__ = [
     "LAMBERT_SHARE",
     "OPEN_BEND",
     "PLAIN_SPREAD",
+    "SMOOTH_BEND",
     "IncidentPhotons",
     "choose_incidence",
     "incidence_cosine",
@@ -83,6 +84,9 @@ COS_FLOOR: float = 0.05
 #: this share of the step (a plane seen in perspective bends its steps by some 10-15 % at a
 #: grazing angle, a sphere ten pixels across by some 10 %; an edge or a corner by the whole step).
 OPEN_BEND: float = 0.5
+#: ... and smooth where the second differences on both sides are below this share of their steps:
+#: the normal from the central difference there.
+SMOOTH_BEND: float = 0.1
 #: Lambert's law is taken when the median absolute deviation of the log amplitude ratio with the
 #: angle is at most this share of that without it (a power of the field angle such as a cos^4
 #: vignette on a wall facing the camera leaves 3/4 of it).
@@ -171,6 +175,10 @@ def _tangent(pts: torch.Tensor, axis: int):
     fwd = torch.where(last.unsqueeze(-1), 2 * bwd - bwd2, fwd)  # no wrap at the border
     bwd = torch.where(first.unsqueeze(-1), 2 * fwd - fwd2, bwd)
     step = torch.where(use_fwd.unsqueeze(-1), fwd, bwd)
+    # where both sides continue smoothly (a curved surface), the central difference: a one-sided
+    # difference holds the normal half a pixel off, the same way on every pixel of a sphere
+    smooth = (ef <= SMOOTH_BEND * fwd.norm(dim=-1)) & (eb <= SMOOTH_BEND * bwd.norm(dim=-1))
+    step = torch.where(smooth.unsqueeze(-1), 0.5 * (fwd + bwd), step)
     bend = torch.where(use_fwd, ef, eb)
     bend = torch.where(first, (fwd2 - fwd).norm(dim=-1), torch.where(last, eb, bend))
     return step, fwd, bwd, bend > OPEN_BEND * step.norm(dim=-1)
