@@ -18,15 +18,15 @@ misfit anywhere in the frame is a random gain per pixel (``pixel_gain``), which 
 a camera that has none.
 
 ``cos theta_inc`` comes from the scene's depth map: back-projected through a pinhole of horizontal
-field of view ``photons.field_of_view`` (degrees), the surface normals from one-sided differences
-that cross neither a depth edge nor a corner (:func:`_tangent`). Neither value is fitted by the
+field of view ``photons.field_of_view`` (degrees), the surface normals from differences that cross
+neither a depth edge nor a corner (:func:`_tangent`). Neither value is fitted by the
 likelihood (a free power of the cosine would take up a share of any other smooth amplitude misfit:
 a vignette, a clip, a bias): :func:`choose_incidence` decides them once, before the fit, from the
 amplitude means against the model without the angle, by the median absolute deviation of the log
 ratio (robust to the pixels whose normal a depth map cannot give, edges and surfaces a few pixels
 wide, and to clipped or otherwise spoilt pixels). Lambert's law (``gamma = 1``, at the field of
-view that explains the amplitude best) is taken when it leaves at most :data:`LAMBERT_SHARE` of
-that deviation; else the reflectance holds the angle (``gamma = 0``). Where the scene is estimated
+view that explains the amplitude best, settled by weighted least squares) is taken when it leaves
+at most :data:`LAMBERT_SHARE` of that deviation; else the reflectance holds the angle (``gamma = 0``). Where the scene is estimated
 from the recording, its reflectance is taken from the amplitude itself and holds the angle already:
 ``gamma = 0``.
 """
@@ -155,7 +155,9 @@ def _tangent(pts: torch.Tensor, axis: int):
     side that does neither lies on the pixel's surface (a floor seen at a grazing angle has large
     steps, so the smaller step of the two would cross the corner to the wall). Where even that
     side's second difference exceeds :data:`OPEN_BEND` times the step (a surface a pixel wide,
-    a pixel between two edges), the depth map does not give the pixel's surface."""
+    a pixel between two edges), the depth map does not give the pixel's surface. Where both
+    sides continue smoothly (second differences below :data:`SMOOTH_BEND` times their steps),
+    the step is the central difference, their mean."""
     n = pts.shape[axis]
     fwd = torch.roll(pts, -1, axis) - pts
     if n < 3:
