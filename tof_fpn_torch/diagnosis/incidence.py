@@ -19,16 +19,16 @@ a camera that has none.
 
 ``cos theta_inc`` comes from the scene's depth map: back-projected through a pinhole of horizontal
 field of view ``photons.field_of_view`` (degrees), the surface normals from differences that cross
-neither a depth edge nor a corner (:func:`_tangent`). Neither value is fitted by the
-likelihood (a free power of the cosine would take up a share of any other smooth amplitude misfit:
-a vignette, a clip, a bias): :func:`choose_incidence` decides them once, before the fit, from the
-amplitude means against the model without the angle, by the median absolute deviation of the log
-ratio (robust to the pixels whose normal a depth map cannot give, edges and surfaces a few pixels
-wide, and to clipped or otherwise spoilt pixels). Lambert's law (``gamma = 1``, at the field of
-view that explains the amplitude best, settled by weighted least squares) is taken when it leaves
-at most :data:`LAMBERT_SHARE` of that deviation; else the reflectance holds the angle (``gamma = 0``). Where the scene is estimated
-from the recording, its reflectance is taken from the amplitude itself and holds the angle already:
-``gamma = 0``.
+neither a depth edge nor a corner (:func:`_tangent`). Neither value is fitted by the likelihood (a
+free power of the cosine would take up a share of any other smooth amplitude misfit: a vignette, a
+clip, a bias): :func:`choose_incidence` decides them once, before the fit, from the amplitude means
+against the model without the angle, by the median absolute deviation of the log ratio (robust to
+the pixels whose normal a depth map cannot give, edges and surfaces a few pixels wide, and to
+clipped or otherwise spoilt pixels). Lambert's law (``gamma = 1``, at the field of view that
+explains the amplitude best, settled by weighted least squares) is taken when it leaves at most
+:data:`LAMBERT_SHARE` of that deviation; else the reflectance holds the angle (``gamma = 0``).
+Where the scene is estimated from the recording, its reflectance is taken from the amplitude itself
+and holds the angle already: ``gamma = 0``.
 """
 
 from __future__ import annotations
