@@ -15,6 +15,7 @@ import torch
 
 from .. import constants as K
 from .data import Observations
+from .incidence import FOV_KEY, INCIDENCE_KEY, choose_incidence
 from .likelihood import Context, n_observations, nll
 from .model import DiagnosisModel
 from .params import from_u, to_u
@@ -64,6 +65,15 @@ def init_model(obs: Observations, scene) -> DiagnosisModel:
     with torch.no_grad():
         p = predict(model, obs, scene=scene)
         ok = obs.known & (obs.n > 0) & (obs.m_a > 0)
+        # the angle of incidence (an estimated reflectance, taken from the amplitude, holds it)
+        values.update(choose_incidence(obs, p.a0, ok & (not obs.scene_estimated)))
+        if values[INCIDENCE_KEY] != 0.0:
+            p = predict(model, obs, scene=scene)
+            obs.notes.append(
+                "the scene's reflectance is taken as albedo: the baseline holds the angle of "
+                "incidence (Lambert's law, normals from the scene's depth through a pinhole of "
+                f"{values[FOV_KEY]:.0f} deg horizontal field of view)"
+            )
         k = float((obs.m_a[ok] / p.a0[ok]).median())
         a0 = p.a0 * k
         off = p.offset * k

@@ -1,7 +1,9 @@
 """The diagnosing model: a simulator chain whose noise-free output is the mean, plus the noise law.
 
 Baseline: ideal sinusoidal correlation (:class:`~tof_fpn_torch.sim.Photons`, amplitude
-``k rho / d^2`` up to the camera constants, ``k`` = ``photons.responsivity`` fitted), offset ``B``
+``k rho cos(theta_inc)^gamma / d^2`` up to the camera constants, ``k`` = ``photons.responsivity``
+fitted; ``gamma`` = ``photons.incidence``, 1 for a scene whose reflectance is an albedo, else 0,
+chosen from the amplitude before the fit, :mod:`~tof_fpn_torch.diagnosis.incidence`), offset ``B``
 (active light over the demodulation contrast plus ambient), photon shot and read noise (the
 conversion gain ``g`` and the read noise fitted), column read-out FPN at ``2 pi / 3`` and ``pi``
 (:class:`~tof_fpn_torch.sim.ReadoutFPN`'s offsets ``o_n(x) = p(x) cos(2 pi n / N - psi)``; the
@@ -21,6 +23,7 @@ from dataclasses import dataclass, field, replace
 
 from .. import constants as K
 from ..sim import ADC, STAGE, Camera, Joined, Photons, ReadNoise, ReadoutFPN, ShotNoise, Simulation
+from .incidence import FOV_KEY, INCIDENCE_KEY, IncidentPhotons
 from .params import ParamSpec
 from .prediction import WRAP_BOUNDARY_SD, Prediction, dev_to_boundary, predict
 from .readout import READOUT_KEYS, readout_maps
@@ -180,7 +183,13 @@ class DiagnosisModel:
     def simulation(self) -> Simulation:
         """The model as a complete, noisy :class:`~tof_fpn_torch.sim.Simulation` (DN out)."""
         v = self.values
-        terms = [Photons(responsivity=v["photons.responsivity"]), ShotNoise(), self.readout_fpn()]
+        gamma = float(v.get(INCIDENCE_KEY, 0.0))
+        photons = (
+            IncidentPhotons(v["photons.responsivity"], incidence=gamma, field_of_view=v[FOV_KEY])
+            if gamma > 0.0 and FOV_KEY in v
+            else Photons(responsivity=v["photons.responsivity"])
+        )
+        terms = [photons, ShotNoise(), self.readout_fpn()]
         terms += [ReadNoise(), ADC(quantize=True)]
         for term in self.terms:
             t = term.simulator_term(v, self)

@@ -20,6 +20,7 @@ import torch
 from ..sim import Camera
 from ..sim import Term as SimTerm
 from .catalogue import CATALOGUE
+from .incidence import FIELDS_OF_VIEW, FOV_KEY, INCIDENCE_KEY
 from .model import CORE_SPECS, DiagnosisModel
 from .readout import READOUT_KEYS
 
@@ -108,6 +109,8 @@ def load_model(source) -> DiagnosisModel:
         raise ValueError(f"{where}: unknown effects {bad}; known: {sorted(CATALOGUE)}")
     values = {k: float(v) for k, v in data["values"].items()}
     values.setdefault("camera.ambient_irradiance", float(cam.ambient_irradiance))
+    values.setdefault(INCIDENCE_KEY, 0.0)  # a model saved before the baseline held the angle
+    values.setdefault(FOV_KEY, FIELDS_OF_VIEW[len(FIELDS_OF_VIEW) // 2])
     need = [s.key for s in CORE_SPECS] + [s.key for e in effects for s in CATALOGUE[e].specs]
     missing = [k for k in need if k not in values]
     if missing:

@@ -20,6 +20,7 @@ import torch
 
 from .. import constants as K
 from ..sim import STAGE, Camera, Photons, SimState, depth_from_samples
+from .incidence import incidence_factor, incidence_sd, open_light
 from .noise import decode_flat_safe, noise_law
 from .readout import apply_readout
 from .terms.base import Chain
@@ -145,7 +146,9 @@ def predict(model, obs, v: dict | None = None, scene=None) -> Prediction:
     cam = model.camera
     units, key = _photon_units(cam, scene)
     amb_irr = v.get("camera.ambient_irradiance", cam.ambient_irradiance)
-    samples = (units[0] + units[1] * amb_irr) * v["photons.responsivity"]
+    inc = incidence_factor(scene, v)  # the angle of incidence (None: not in the model)
+    active = units[0] if inc is None else units[0] * inc
+    samples = (active + units[1] * amb_irr) * v["photons.responsivity"]
     chain = Chain(samples, units, key, amb_irr, v["photons.responsivity"])
     state = _mean_chain(model, v, SimState(cam, scene, samples, None), chain)
     g = v["camera.conversion_gain"]
@@ -164,11 +167,17 @@ def predict(model, obs, v: dict | None = None, scene=None) -> Prediction:
         mu_d = torch.remainder(mu_d, wrap)
     a0 = a0.clamp_min(1e-9)
     mu_a, sd_a, var_d, s = noise_law(cam, v, dn, a0, offset, chain.sample_var)
+    light = open_light(scene, v, obs, mu_a)  # where the angle leaves a pixel's light open
+    if light is not None:
+        var_d = var_d / light**2
     var_d = _terms_depth_variance(model, v, var_d + obs.q_depth**2 / 12.0, r_cam)
     if wrap is None:
         mu_d = _boundary_side(mu_d, var_d, obs, r_cam)
     sd_a = torch.sqrt(sd_a**2 + obs.q_amp**2 / 12.0)
     tau = _amplitude_tau(model, v, mu_a)
+    open_angle = incidence_sd(scene, v, mu_a)  # the baseline's: where a surface's angle is open
+    if open_angle is not None:  # (no square root of a sum that is 0 in most pixels)
+        tau = open_angle if isinstance(tau, float) else torch.sqrt(tau * tau + open_angle**2)
     k = 4.0 * math.pi * f / K.SPEED_OF_LIGHT_AIR
     tau_d = _random_sd([t.depth_mean_sd(v, a0, k) for t in model.terms])
     return Prediction(mu_d, torch.sqrt(var_d), mu_a, sd_a, tau, a0, offset, s, wrap, tau_d)

@@ -13,6 +13,7 @@ from ..io import Recording, read_any_recording, read_scene
 from .catalogue import CATALOGUE, REVEALED_WITHOUT_SCENE
 from .data import Observations, observe
 from .fit import FIT_TOL, evaluate, fit, init_model, robust_start
+from .incidence import incidence_open
 from .likelihood import Context, make_context
 from .locate import Stat, bootstrap, locate, statistics
 from .model import DiagnosisModel
@@ -236,12 +237,20 @@ def _baseline(obs: Observations, baseline) -> DiagnosisModel:
     return model
 
 
+def _trusted_snr(model: DiagnosisModel, obs: Observations, pred) -> torch.Tensor:
+    """The predicted SNR (``A_0 / s``) that the likelihood's masks are cut at, 0 where the
+    baseline's angle of incidence leaves a pixel's light open (``incidence.incidence_open``)."""
+    snr = pred.a0 / pred.s
+    open_ = incidence_open(obs.scene(), model.values)
+    return snr if open_ is None else snr.masked_fill(open_, 0.0)
+
+
 def _fit_baseline(model: DiagnosisModel, obs: Observations):
     """``(fitted model, context, robust starting values)``: the likelihood's pixel masks, the
     baseline fitted on them, and the core values a gross misfit cannot drag away."""
     with torch.no_grad():
         p0 = predict(model, obs)
-    ctx = make_context(obs, p0.a0 / p0.s)
+    ctx = make_context(obs, _trusted_snr(model, obs, p0))
     # the masks come from the starting model (its amplitude scale and noise level are robust
     # medians of the data), so that a baseline that misfits badly cannot shrink them ...
     init = model
@@ -251,7 +260,8 @@ def _fit_baseline(model: DiagnosisModel, obs: Observations):
     # hid e.g. wrapped far pixels with a fitted SNR above the cut); refit on the union
     with torch.no_grad():
         p1 = predict(model, obs)
-    grown = make_context(obs, torch.maximum(p0.a0 / p0.s, p1.a0 / p1.s))
+    snr = torch.maximum(_trusted_snr(model, obs, p0), _trusted_snr(model, obs, p1))
+    grown = make_context(obs, snr)
     if bool((grown.mask_d & ~ctx.mask_d).any()) or bool((grown.mask_a & ~ctx.mask_a).any()):
         ctx = grown
         model, _ = fit(model, obs, ctx)
