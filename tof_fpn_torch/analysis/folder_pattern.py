@@ -92,6 +92,9 @@ def _kernel(gap: int) -> tuple[float, ...]:
     return _KERNELS.get(gap, _WIDE_KERNEL)
 
 
+#: the gaps of a read-out offset's fit: its depth effect follows the scene's phase and amplitude,
+#: so a wide gap's differences also carry what a curved scene's shading leaves in them
+READOUT_GAPS: tuple[int, ...] = (1,)
 #: the least-squares start leaves out second differences beyond this many robust spreads
 START_CLIP = 5.0
 #: empirical Bayes iterations (the first one least squares)
@@ -566,7 +569,8 @@ def _learn(
     each frame."""
     b = torch.ones_like(d)[None] if basis is None else basis
     rows = slice(None, None, max(1, d.shape[1] // PROFILE_LINES))
-    theta, _ = _columns(_column_terms(d[:, rows], var[:, rows], b[:, :, rows]))
+    gaps = GAPS if basis is None else READOUT_GAPS
+    theta, _ = _columns(_column_terms(d[:, rows], var[:, rows], b[:, :, rows], gaps))
     d = d - (theta[:, None, None, :] * b).sum(0)
     cols = slice(None, None, max(1, d.shape[2] // PROFILE_LINES))
     dt, vt = d[:, :, cols].transpose(1, 2), var[:, :, cols].transpose(1, 2)  # rows as columns
