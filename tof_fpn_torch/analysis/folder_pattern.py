@@ -79,9 +79,13 @@ MIN_SIDE = 8
 MIN_Z = 6.0
 #: Tukey's biweight cut-off, in noise standard deviations of a second difference
 TUKEY_C = 3.0
-#: the gaps of the column and row models' second differences: gap 1 sees a pattern's high
-#: frequencies, a wider gap its low ones (a plane's second differences vanish at any gap)
-GAPS: tuple[int, ...] = (1, 4)
+#: the gaps of the column and row models' differences: gap 1 sees a pattern's high frequencies,
+#: a wider gap its low ones (a plane's differences vanish at any gap) but lets more of a kink in;
+#: each folder takes the set whose profiles predict the other half of its scenes best
+#: (:func:`_choose_gaps`)
+GAP_SETS: tuple[tuple[int, ...], ...] = ((1,), (1, 2), (1, 4))
+#: the gaps used where none were chosen
+GAPS: tuple[int, ...] = (1,)
 #: the difference taken at each gap: the second (gap 1); the third at wider gaps, which also
 #: vanishes on a scene's steady curvature (a slanted plane's depth is not linear in x)
 _KERNELS: dict[int, tuple[float, ...]] = {1: (1.0, -2.0, 1.0)}
@@ -321,8 +325,6 @@ FREQUENCIES_HZ: tuple[float, ...] = (
 READOUT_MARGIN = 0.25
 #: rows (columns) of each frame a column (row) profile is fitted on, at most
 PROFILE_LINES = 128
-#: the read-out model is tried where the offsets' columns agree between the halves this much
-READOUT_MIN_Z = 3.0
 #: the amplitude floor of the ``1 / A`` basis, as a share of the median amplitude
 AMPLITUDE_FLOOR = 0.2
 #: iterations of the fits that choose the frequency and the field of view (the first least
@@ -481,13 +483,18 @@ def _loss(terms: list[tuple], theta: torch.Tensor) -> float:
     return total
 
 
-def _pixels(d: torch.Tensor, var: torch.Tensor, iterations: int = ITERATIONS) -> torch.Tensor:
+def _pixels(
+    d: torch.Tensor,
+    var: torch.Tensor,
+    gaps: tuple[int, ...] = GAPS,
+    iterations: int = ITERATIONS,
+) -> torch.Tensor:
     """Per-pixel offsets of (N, H, W) frames (module docstring), zero-mean: the differences of
-    every gap of :data:`GAPS` along x and along y."""
+    every gap of ``gaps`` along x and along y."""
     _, h, w = d.shape
     terms = []
     for dim, n in ((-1, w), (-2, h)):
-        for gap in GAPS:
+        for gap in gaps:
             if n - (len(_kernel(gap)) - 1) * gap < 1:
                 continue
             e = _diff(d, dim, gap)
@@ -561,22 +568,51 @@ def _cg(op, b: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 
 
 def _learn(
-    d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor | None
+    d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor | None, gaps: dict | None = None
 ) -> dict[str, torch.Tensor]:
     """Columns (the channels of ``basis``, offsets only when None), rows on what the columns
     leave, pixels on what both leave; ``columns`` is (K, W). A profile is the same down its
     columns (along its rows): it is fitted on at most :data:`PROFILE_LINES` rows (columns) of
-    each frame."""
+    each frame. ``gaps``: per axis (``columns``, ``rows``) the gaps of the differences
+    (default :data:`GAPS`; a read-out's columns always :data:`READOUT_GAPS`); the pixels take
+    both axes' gaps."""
+    gaps = gaps or {}
+    g_col = READOUT_GAPS if basis is not None else gaps.get("columns", GAPS)
+    g_row = gaps.get("rows", GAPS)
     b = torch.ones_like(d)[None] if basis is None else basis
     rows = slice(None, None, max(1, d.shape[1] // PROFILE_LINES))
-    gaps = GAPS if basis is None else READOUT_GAPS
-    theta, _ = _columns(_column_terms(d[:, rows], var[:, rows], b[:, :, rows], gaps))
+    theta, _ = _columns(_column_terms(d[:, rows], var[:, rows], b[:, :, rows], g_col))
     d = d - (theta[:, None, None, :] * b).sum(0)
     cols = slice(None, None, max(1, d.shape[2] // PROFILE_LINES))
     dt, vt = d[:, :, cols].transpose(1, 2), var[:, :, cols].transpose(1, 2)  # rows as columns
-    row = _columns(_column_terms(dt, vt, torch.ones_like(dt)[None]))[0][0]
+    row = _columns(_column_terms(dt, vt, torch.ones_like(dt)[None], g_row))[0][0]
     d = d - row[None, :, None]
-    return {"columns": theta, "rows": row, "pixels": _pixels(d, var)}
+    g_pix = tuple(sorted(set(gaps.get("columns", GAPS)) | set(g_row)))
+    return {"columns": theta, "rows": row, "pixels": _pixels(d, var, g_pix)}
+
+
+def _choose_gaps(d: torch.Tensor, var: torch.Tensor) -> dict[str, tuple[int, ...]]:
+    """Per axis, the set of :data:`GAP_SETS` whose offset profile, fitted on one half of the
+    scenes, predicts the other half's differences of every gap best (the robust loss of
+    :func:`_columns`, both ways): wide gaps see a pattern's low frequencies where the scenes are
+    smooth over them and let kinks and curvature in where they are not."""
+    halves = (slice(0, None, 2), slice(1, None, 2))
+    union = tuple(sorted({g for s in GAP_SETS for g in s}))
+    out = {}
+    for axis in ("columns", "rows"):
+        x, v = (d, var) if axis == "columns" else (d.transpose(1, 2), var.transpose(1, 2))
+        lines = slice(None, None, max(1, x.shape[1] // PROFILE_LINES))
+        x, v = x[:, lines], v[:, lines]
+        ones = torch.ones_like(x)[None]
+        held = [_column_terms(x[h], v[h], ones[:, h], union) for h in halves]
+        best = None
+        for gaps in GAP_SETS:
+            fit = [_columns(_column_terms(x[h], v[h], ones[:, h], gaps))[0] for h in halves]
+            loss = _loss(held[1], fit[0]) + _loss(held[0], fit[1])
+            if best is None or loss < best[0]:
+                best = (loss, gaps)
+        out[axis] = best[1]
+    return out
 
 
 def _readout_model(
@@ -701,13 +737,21 @@ def _agreement(a: torch.Tensor, b: torch.Tensor) -> tuple[float, float, float]:
     return ab / (math.sqrt(n) * v), ab / n, v
 
 
-def _confirmed(d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor | None, min_z: float):
+def _confirmed(
+    d: torch.Tensor,
+    var: torch.Tensor,
+    basis: torch.Tensor | None,
+    min_z: float,
+    gaps: dict | None = None,
+):
     """Each part learned on all scenes and on each half; ``(parts, kept)``: per part its RMS
     (the columns' depth effect over the frames), the halves' agreement ``z`` and the factor
     applied, and the kept (scaled) estimates (module docstring)."""
-    full = _learn(d, var, basis)
+    full = _learn(d, var, basis, gaps)
     halves = [slice(0, None, 2), slice(1, None, 2)]
-    half_a, half_b = (_learn(d[h], var[h], None if basis is None else basis[:, h]) for h in halves)
+    half_a, half_b = (
+        _learn(d[h], var[h], None if basis is None else basis[:, h], gaps) for h in halves
+    )
     parts, kept = {}, {}
     b = torch.ones_like(d)[None] if basis is None else basis
     seen = torch.isfinite(d)
@@ -807,16 +851,19 @@ def learn_folder_pattern(
             reason=f"{still}{scenes} distinct scene(s), a pattern needs >= {min_scenes}",
         )
     d, var, amp = _merge(d, var, amp, groups)
-    # offsets first; where their columns show a pattern at all and there are amplitudes, the
-    # read-out model too, kept when the held-out half prefers it and the halves confirm it
-    parts, kept = _confirmed(d, var, None, min_z)
+    # offsets first; with amplitudes the read-out model too, kept when the held-out half prefers
+    # it and the halves confirm it (tried even where the offsets' columns do not agree between
+    # the halves: a read-out's depth effect changes sign with the scene's phase, and periodic
+    # stripes ~ 1 / A on slanted planes showed none as offsets, z < 3)
+    gaps = _choose_gaps(d, var)
+    parts, kept = _confirmed(d, var, None, min_z, gaps)
     f_hz, focal, evidence, a_ref = None, None, {}, 1.0
-    if amp is not None and w >= 5 and parts["columns"]["z"] >= READOUT_MIN_Z:
+    if amp is not None and w >= 5:
         freqs = FREQUENCIES_HZ if modulation_frequency_hz is None else (modulation_frequency_hz,)
         f_hz, focal, evidence = _readout_model(d, var, amp, freqs)
         if f_hz is not None:
             basis, a_ref = _basis(d, amp, f_hz, _ray(h, w, focal))
-            parts_ro, kept_ro = _confirmed(d, var, basis, min_z)
+            parts_ro, kept_ro = _confirmed(d, var, basis, min_z, gaps)
             if "columns" in kept_ro:
                 parts, kept = parts_ro, kept_ro
             else:
