@@ -14,9 +14,11 @@ leave), the pattern is the maximum a-posteriori estimate
     ``min_P  sum_i sum rho((D2 (D_i - P)) / s_i) + |P|^2 / sigma_P^2``
 
 with ``D2`` the second difference along x (columns) or along x and y (pixels), summed with the
-same term for the third difference at a gap of 4 pixels (:data:`GAPS`: it vanishes on a scene's
-steady curvature too and sees the pattern's low frequencies, which the scenes' slopes hide from
-neighbours' second differences), ``s_i`` the noise
+same term for the third difference at a gap of 2 or 4 pixels where the folder's scenes allow it
+(:data:`GAP_SETS`, chosen per axis by how well a fit on one half of the scenes predicts the other:
+a third difference vanishes on a scene's steady curvature too and sees the pattern's low
+frequencies, which the scenes' slopes hide from neighbours' second differences, but a wide one
+lets more of a kink in), ``s_i`` the noise
 of a second difference (a per-frame ``k_i / A`` model fitted from the data, or one level per frame
 without amplitudes), ``rho`` quadratic first and then Tukey's biweight (edges, kinks and flying
 pixels get weight 0; the least-squares start already leaves out differences far beyond the
