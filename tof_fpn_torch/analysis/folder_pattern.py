@@ -375,9 +375,9 @@ def _column_terms(
     d: torch.Tensor, var: torch.Tensor, basis: torch.Tensor, gaps: tuple[int, ...] | None = None
 ) -> list[tuple]:
     """The observations of the column model, one set per gap ``g`` of :data:`GAPS` (or
-    ``gaps``): the second differences ``d(x) - 2 d(x + g) + d(x + 2 g)`` along x, their weights
-    and sds, the basis at the three pixels of each difference ``(3, K, N, H, W - 2 g)``, and
-    ``g``."""
+    ``gaps``): the differences :func:`_diff` along x (the second at gap 1, the third at wider
+    gaps), their weights and sds, the basis at the ``L`` pixels of each difference
+    ``(L, K, N, H, W - (L - 1) g)``, and ``g``."""
     w = d.shape[-1]
     out = []
     for g in GAPS if gaps is None else gaps:
@@ -638,12 +638,12 @@ def _readout_model(
         return _basis(ds, amps, f, None if ray is None else ray[sub])[0]
 
     def fit(f: float, fov: float | None) -> float:
-        terms = _column_terms(ds, vs, sub_basis(f, fov), gaps=(1,))
+        terms = _column_terms(ds, vs, sub_basis(f, fov), gaps=READOUT_GAPS)
         return _columns(terms, iterations=SELECT_ITERATIONS)[1]
 
     def held_out(f: float, fov: float | None) -> float:
         b = sub_basis(f, fov)
-        terms = [_column_terms(ds[h_], vs[h_], b[:, h_], gaps=(1,)) for h_ in halves]
+        terms = [_column_terms(ds[h_], vs[h_], b[:, h_], gaps=READOUT_GAPS) for h_ in halves]
         theta = [_columns(t, iterations=SELECT_ITERATIONS)[0] for t in terms]
         return _loss(terms[1], theta[0]) + _loss(terms[0], theta[1])
 
@@ -658,7 +658,7 @@ def _readout_model(
     for name, basis in (("offset", ones), ("readout", b_full)):
         rows = slice(None, None, max(1, d.shape[1] // 128))  # ~128 rows: the model's choice
         terms = [
-            _column_terms(d[h_, rows], var[h_, rows], basis[:, h_, rows], gaps=(1,))
+            _column_terms(d[h_, rows], var[h_, rows], basis[:, h_, rows], gaps=READOUT_GAPS)
             for h_ in halves
         ]
         theta = [_columns(t, iterations=5)[0] for t in terms]
