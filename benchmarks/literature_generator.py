@@ -86,7 +86,7 @@ AE_TARGET = 0.6  # brightest noiseless sample / full well
 RANGE_M = C0 / (2 * F_MOD)
 M_PER_RAD = C0 / (4 * np.pi * F_MOD)
 SOURCE = "benchmarks/literature_generator.py"
-PART_CODES = {"dev": 0, "heldout": 1}
+PART_CODES = {"dev": 0, "heldout": 1, "heldout2": 2}
 P0_FILE = (
     Path(__file__).resolve().parents[1]
     / "tests/data/real/kinect_v2_p0/p0tables_3x424x512_u16le.dat"
