@@ -1,7 +1,8 @@
 """Does ``tof-fpn diagnose`` name the effect planted by the literature generator?
 
 The recordings come from ``benchmarks/literature_generator.py`` (``--part dev``) or
-``benchmarks/literature_heldout.py`` (``--part heldout``): an AMCW camera written from published
+``benchmarks/literature_heldout.py`` (``--part heldout``) or ``benchmarks/literature_heldout2.py``
+(``--part heldout2``): an AMCW camera written from published
 physics, with effects whose forms the diagnosis was not tuned on (see those modules' docstrings for
 every form and its source). For each recording the diagnosis gets the recording (depth, amplitude,
 raw samples, meta) and the true scene (radial depth, reflectance); its list of effect names is
@@ -38,7 +39,11 @@ def _part(part):
         import literature_heldout as lh
 
         return lh.HELDOUT_FORMS, lh.generate, lh.SEED0
-    raise ValueError(f"part must be dev or heldout, got {part!r}")
+    if part == "heldout2":
+        import literature_heldout2 as lh2
+
+        return lh2.HELDOUT2_FORMS, lh2.generate, lh2.SEED0
+    raise ValueError(f"part must be dev, heldout or heldout2, got {part!r}")
 
 
 def case_list(part, per_form, nulls, limit=None):
@@ -174,7 +179,7 @@ def print_table(sc, out=sys.stdout):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--part", choices=["dev", "heldout"], default="dev")
+    ap.add_argument("--part", choices=["dev", "heldout", "heldout2"], default="dev")
     ap.add_argument("--per-form", type=int, default=2)
     ap.add_argument("--nulls", type=int, default=8)
     ap.add_argument("--size", type=int, nargs=3, default=[120, 160, 24], metavar=("H", "W", "T"))
