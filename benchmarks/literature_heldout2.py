@@ -206,7 +206,8 @@ def scene_desk(rng):
 
 
 def scene_aisle(rng):
-    """A warehouse aisle: pallet stacks (boxes) on both sides, round pillars, an end wall 4.8-5.3 m."""
+    """A warehouse aisle: pallet stacks (boxes) on both sides, round pillars, an end wall 4.8-5.3
+    m away."""
     floor = -rng.uniform(1.2, 1.5)
     ceil = rng.uniform(1.3, 1.6)
     half_w = rng.uniform(1.5, 1.8)
@@ -260,8 +261,8 @@ def sat_column_adc_clip(ctx, rng):
     0.1-0.3, all below the well's 55256 DN), the integration raised until a share p = 3-10 % of
     the noiseless samples reach their column's level; a sample clips at its column's level, not at
     a common one. M. F. Snoeij, A. J. P. Theuwissen, K. A. A. Makinwa, J. H. Huijsing, "Multiple-
-    ramp column-parallel ADC architectures for CMOS image sensors", IEEE JSSC 42(12), 2007, sec.
-    II (single-slope column ADCs: the conversion range set per column by the comparator and the
+    ramp column-parallel ADC architectures for CMOS image sensors", IEEE JSSC 42(12), 2007
+    (single-slope column ADCs: the conversion range set per column by the comparator and the
     ramp); A. El Gamal and H. Eltoukhy, "CMOS image sensors", IEEE Circuits and Devices Magazine
     21(3), 2005 (column-parallel ADCs and their column-to-column mismatch)."""
     p = rng.uniform(0.03, 0.10)
@@ -301,29 +302,32 @@ def _sun_irradiance(ctx, rng):
 
 def sat_ambient_full_well(ctx, rng):
     """Saturation set by the ambient light: sunlight (through a skylight) adds unmodulated
-    electrons E_sun rho (0.15 + max(0, n . s)) to every sample, the integration time unchanged,
-    E_sun set so that a share p = 3-10 % of the noiseless samples reach the 110 ke- well: the
-    samples near the correlation's peak clip on sunlit bright surfaces, the others keep their
-    phase, so the clip depends on the ambient level of each pixel, not on the active light alone.
-    R. Lange and P. Seitz, "Solid-state time-of-flight range camera", IEEE J. Quantum Electron.
-    37(3), 2001, sec. IV (background light fills the pixel's well and limits the dynamic range);
+    electrons rho (0.15 + max(0, n . s)) to every sample, up to 25-50 % of the well on the most
+    sunlit surfaces; the exposure (set on the modulated amplitude, which the ambient does not
+    show) is raised until a share p = 3-10 % of the noiseless samples reach the 110 ke- well. The
+    active light's headroom is the well minus the ambient, so where the sun falls the pixel clips
+    at a lower active level, and mostly only the samples near the correlation's peak clip. R.
+    Lange and P. Seitz, "Solid-state time-of-flight range camera", IEEE J. Quantum Electron.
+    37(3), 2001 (background light fills the pixel's well and limits the dynamic range);
     T. Moller, H. Kraft, J. Frey, M. Albrecht, R. Lange, "Robust 3D measurement with PMD
     sensors", Range Imaging Research Day, ETH Zurich 2005, sec. 2."""
     p = rng.uniform(0.03, 0.10)
     irr, s = _sun_irradiance(ctx, rng)
+    sun0 = irr * rng.uniform(0.25, 0.5) * FULL_WELL / float(irr.max())
 
-    def share(k):
-        return float(np.mean(ctx.mu0 + k * irr > FULL_WELL))
+    def share(x):
+        return float(np.mean(x * (ctx.mu0 - DARK_E + sun0) + DARK_E > FULL_WELL))
 
-    k = _bisect(share, p, 10.0, 10.0 * FULL_WELL)
-    sun = k * irr
+    x = _bisect(share, p, 0.1, 100.0)
+    sun = x * sun0
     return (
-        Plan(dark_extra=sun[None]),
+        Plan(exposure=x, dark_extra=sun[None]),
         p,
         "share of samples at the well",
         {
             "sun_e_max_per_sample": float(sun.max()),
-            "sun_to_active_median": float(np.median(sun / np.maximum(ctx.e_act, 1e-9))),
+            "sun_to_active_median": float(np.median(sun / np.maximum(x * ctx.e_act, 1e-9))),
+            "exposure_factor": x,
             "sun_direction": [float(v) for v in s],
         },
     )
@@ -336,7 +340,7 @@ def sat_differential_clip(ctx, rng):
     clipped pair keeps its common mode and loses its difference: the amplitude stops growing and
     the phase is pulled towards the multiples of 45 deg. C. S. Bamji et al., "A 0.13 um CMOS
     system-on-chip for a 512x424 time-of-flight image sensor with multi-frequency photo-
-    demodulation up to 130 MHz and 2 GS/s ADC", IEEE JSSC 50(1), 2015, sec. II-III (differential
+    demodulation up to 130 MHz and 2 GS/s ADC", IEEE JSSC 50(1), 2015 (differential
     pixel, the tap difference digitised); EMVA Standard 1288 Rel. 4.0, 2021, sec. 2.1 (saturation
     as the converter's full scale)."""
     p = rng.uniform(0.03, 0.10)
@@ -387,7 +391,7 @@ def fpn_ar_column_pixel(ctx, rng):
     separable 2-D AR(1), a = 0.2-0.6; the column share of the variance 30-70 %), drawn per tap
     and the same in every frame; the total rms s DN per sample set for 4-8 x the temporal-mean
     noise at the median pixel. A. El Gamal, B. A. Fowler, H. Min, X. Liu, "Modeling and
-    estimation of FPN components in CMOS image sensors", Proc. SPIE 3301, 1998, sec. 2 (the
+    estimation of FPN components in CMOS image sensors", Proc. SPIE 3301, 1998 (the
     column and pixel FPN components as first-order isotropic autoregressive processes)."""
     v = rng.uniform(4.0, 8.0)
     s = dn_for_visibility(ctx, v, 1 / math.sqrt(2))
@@ -413,10 +417,9 @@ def fpn_emi_fringe(ctx, rng):
     t_ij = (i W + j) t_pix, so each tap gets o_k = a cos(2 pi nu (i W + j) + psi_k) (nu = f_r
     t_pix mod 1 = 0.03-0.2 cycles per pixel: diagonal fringes; psi_k the tap's own read-out
     time), the same in every frame because the interferer is locked to the frame; a set for 4-8 x
-    the temporal-mean noise at the median pixel. EMVA Standard 1288 Rel. 4.0, 2021, sec. 8.6
-    (periodic disturbances of the non-uniformity and their peaks in the spectrogram); J. R.
-    Janesick, "Photon Transfer", SPIE Press 2007, ch. 10 (fixed pattern from clock and power-line
-    pickup)."""
+    the temporal-mean noise at the median pixel. EMVA Standard 1288 Rel. 4.0, 2021 (the
+    spectrogram of the non-uniformity, in which periodic disturbances show as peaks); the
+    read-out-time model of the pattern is this generator's."""
     v = rng.uniform(4.0, 8.0)
     a = math.sqrt(2) * dn_for_visibility(ctx, v, 1 / math.sqrt(2))
     nu = rng.uniform(0.03, 0.2)
@@ -443,9 +446,9 @@ def ab_bright_end(ctx, rng):
     cm, mostly towards the camera (bright, near targets measured too near). D. Lefloch, R. Nair,
     F. Lenzen, H. Schafer, L. Streeter, M. J. Cree, R. Koch, A. Kolb, "Technical foundation and
     calibration methods for time-of-flight cameras", in Time-of-Flight and Depth Imaging, LNCS
-    8200, Springer 2013, sec. 3 (intensity-related error, including the high-intensity end); S.
-    Foix, G. Alenya, C. Torras, "Lock-in time-of-flight (ToF) cameras: a survey", IEEE Sensors J.
-    11(9), 2011, sec. III (amplitude-related errors); the quadratic onset is this generator's
+    8200, Springer 2013 (intensity-related error); S. Foix, G. Alenya, C. Torras, "Lock-in
+    time-of-flight (ToF) cameras: a survey", IEEE Sensors J. 11(9), 2011 (amplitude-related
+    errors); the restriction to the bright end and the quadratic onset are this generator's
     parametrisation."""
     q = rng.uniform(0.90, 0.97)
     a = ctx.amp0_dn
@@ -467,7 +470,7 @@ def ab_inverse_power(ctx, rng):
     """A bias falling as a power of the amplitude: delta_d = b min((A_2 / A)^g, 3), g = 0.5-1.5,
     A_2 the 2nd amplitude percentile, b = 4-10 cm (a heavy tail into the mid amplitudes, unlike an
     exponential). S. Foix, G. Alenya, C. Torras, "Lock-in time-of-flight (ToF) cameras: a survey",
-    IEEE Sensors J. 11(9), 2011, sec. III (amplitude-related errors, larger for weak returns); T.
+    IEEE Sensors J. 11(9), 2011 (amplitude-related errors, larger for weak returns); T.
     Kahlmann, F. Remondino, H. Ingensand, "Calibration for increased accuracy of the range imaging
     camera SwissRanger", ISPRS Comm. V Symposium 2006 (distance error against the reflectivity);
     the power law is this generator's parametrisation."""
@@ -510,9 +513,10 @@ def ce_led_rc_pulse(ctx, rng):
     (3rd, 5th -> period R / 4; 7th, 9th -> R / 8) is skewed, not a symmetric sine; the global
     delay of the fundamental is calibrated out. M. Frank, M. Plaue, H. Rapp, U. Kothe, B. Jahne,
     F. A. Hamprecht, "Theoretical and experimental error analysis of continuous-wave time-of-flight
-    range cameras", Optical Engineering 48(1), 2009, sec. 3 (systematic error from the higher
+    range cameras", Optical Engineering 48(1), 2009 (systematic error from the higher
     harmonics of the correlation); E. F. Schubert, "Light-Emitting Diodes", 2nd ed., Cambridge
-    Univ. Press 2006, ch. "High-speed LEDs" (the LED's first-order modulation response)."""
+    Univ. Press 2006 (the LED's modulation response, limited by its carrier lifetime and
+    capacitance: a first-order low-pass)."""
     duty = rng.uniform(0.15, 0.28)
     wtau = rng.uniform(0.3, 1.0)
     harm = rc_pulse_harmonics(duty, wtau)
@@ -539,9 +543,9 @@ def ce_subframe_power_droop(ctx, rng):
     bin: a phase error sqrt(2) kappa / m sin(phi - phi_0) of period R (once per range) plus a
     weaker R / 2 term, independent of the amplitude. R. Lange, "3D time-of-flight distance
     measurement with custom solid-state image sensors in CMOS/CCD-technology", PhD thesis, Univ.
-    Siegen 2000, sec. 2.2 (the four phase images acquired one after the other); M. Schmidt,
+    Siegen 2000 (the four phase images acquired one after the other); M. Schmidt,
     "Analysis, modeling and dynamic optimization of 3D time-of-flight imaging systems", PhD
-    thesis, Univ. Heidelberg 2011, ch. 4 (errors of the sequential acquisition when the signal
+    thesis, Univ. Heidelberg 2011 (errors of the sequential acquisition when the signal
     changes between the phase images)."""
     kappa = rng.uniform(0.01, 0.03) * (1 if rng.uniform() < 0.5 else -1)
     g = 1 + kappa * (np.arange(N_PHASES) - 1.5)
@@ -563,10 +567,10 @@ def pg_demod_contrast_map(ctx, rng):
     efficiency m_ij = m (1 + s z_ij), s = 3-8 %, the same in every frame; the modulated part of
     the samples (the amplitude) is scaled, the DC (ambient and the light's mean) is not, so it is
     a gain on the amplitude that the intensity image does not show. R. Lange and P. Seitz,
-    "Solid-state time-of-flight range camera", IEEE J. Quantum Electron. 37(3), 2001, sec. II
+    "Solid-state time-of-flight range camera", IEEE J. Quantum Electron. 37(3), 2001
     (demodulation contrast); B. Buttgen, T. Oggier, M. Lehmann, R. Kaufmann, F. Lustenberger,
     "CCD/CMOS lock-in pixel for range imaging: challenges, limitations and state-of-the-art",
-    Range Imaging Research Day, ETH Zurich 2005, sec. 2 (demodulation contrast of lock-in pixels);
+    Range Imaging Research Day, ETH Zurich 2005 (demodulation contrast of lock-in pixels);
     its spread over the pixels is modelled like a PRNU (EMVA 1288 Rel. 4.0, sec. 4.5)."""
     s = rng.uniform(0.03, 0.08)
     g = 1 + s * rng.standard_normal((ctx.h, ctx.w))
@@ -584,9 +588,9 @@ def pg_nir_fringing(ctx, rng):
     thickness t(x, y): g = 1 + a cos(4 pi n_Si t / lambda + phi_0), a = 3-10 %; t varies smoothly
     over the array (a smooth random field of 2-6 optical wavelengths peak to peak), giving contour
     fringes; on all light reaching the pixel. J. R. Janesick, "Scientific Charge-Coupled Devices",
-    SPIE Press 2001, ch. 3 (quantum efficiency; interference fringing of thinned sensors in the
+    SPIE Press 2001 (quantum efficiency; interference fringing of thinned sensors in the
     near infrared); S. B. Howell, "Handbook of CCD Astronomy", 2nd ed., Cambridge Univ. Press
-    2006, sec. 4.5 (fringing in the red and near infrared)."""
+    2006 (fringing in the red and near infrared)."""
     a = rng.uniform(0.03, 0.10)
     cycles = rng.uniform(2.0, 6.0)
     field = ndimage.gaussian_filter(rng.standard_normal((ctx.h, ctx.w)), 0.25 * min(ctx.h, ctx.w))
@@ -608,7 +612,7 @@ def imp_stuck_taps(ctx, rng):
     stuck at a fixed code (stuck low at the black level, or at a random code 2-60 kDN), without
     noise and whatever the light, in every frame. J. Dudas, L. M. Wu, C. Jung, G. H. Chapman, Z.
     Koren, I. Koren, "Identification of in-field defect development in digital image sensors",
-    Proc. SPIE 6502, 2007, sec. 2 (stuck-high, stuck-low and partially stuck pixels)."""
+    Proc. SPIE 6502, 2007 (stuck-high, stuck-low and partially stuck pixels)."""
     f = rng.uniform(0.003, 0.01)
     n = max(1, int(round(f * ctx.h * ctx.w)))
     idx = rng.choice(ctx.h * ctx.w, n, replace=False)
@@ -635,9 +639,9 @@ def imp_adc_sparkle_codes(ctx, rng):
     decided wrongly) and the output code has one of its upper bits (2^10-2^14 DN) flipped; each
     sample of each frame independently with probability r = 2-8 x 10^-4, so a few pixels per frame
     jump by a power of two, up or down, never twice in the same place on purpose. W. Kester (ed.),
-    "The Data Conversion Handbook", Analog Devices / Newnes 2005, ch. 2 (sparkle codes and
+    "The Data Conversion Handbook", Analog Devices / Newnes 2005 (sparkle codes and
     metastable comparator outputs); R. H. Walden, "Analog-to-digital converter survey and
-    analysis", IEEE J. Sel. Areas Commun. 17(4), 1999, sec. II (comparator ambiguity)."""
+    analysis", IEEE J. Sel. Areas Commun. 17(4), 1999 (comparator ambiguity)."""
     r = rng.uniform(2e-4, 8e-4)
     shape = (ctx.t, N_PHASES, ctx.h, ctx.w)
     hit = rng.uniform(size=shape) < r
@@ -684,7 +688,7 @@ def vig_barrel_clip(ctx, rng):
     1.05-1.3) whose centre moves out as kappa tan(theta): full light up to theta_c = atan((R - 1)
     / kappa), then a steep loss; kappa set for a loss of 25-60 % in the corners; on all light
     reaching the pixel. N. Asada, A. Amano, M. Baba, "Photometric calibration of zoom lens
-    systems", ICPR 1996, sec. 2 (vignetting as the overlap of the aperture and the lens rim); W.
+    systems", ICPR 1996 (vignetting as the overlap of the aperture and the lens rim); W.
     Yu, "Practical anti-vignetting methods for digital cameras", IEEE Trans. Consumer Electronics
     50(4), 2004 (mechanical vs natural vignetting)."""
     rr = rng.uniform(1.05, 1.3)
@@ -712,9 +716,9 @@ def vig_flat_top_diffuser(ctx, rng):
     4-8, half-intensity half-angles alpha = 0.92-1.05 of the camera's half fields of view; flat in
     the middle, falling along the image's borders and most in the corners; on the modulated light
     only. F. M. Dickey and S. C. Holswade (eds.), "Laser Beam Shaping: Theory and Techniques",
-    Marcel Dekker 2000, ch. 1 (flat-top profiles as super-Gaussians); I. Moreno, "Illumination
-    uniformity assessment based on human vision", Optics Letters 35(23), 2010 (the order of the
-    super-Gaussian and the edge of the flat top)."""
+    Marcel Dekker 2000 (flat-top profiles
+    described as super-Gaussians); the rectangular field of illumination is this generator's
+    choice for a diffuser matched to the sensor's aspect ratio."""
     p = rng.uniform(4.0, 8.0)
     d = _rays(ctx.h, ctx.w)
     tx = np.abs(d[..., 0] / d[..., 2])
@@ -744,7 +748,7 @@ def td_phase_random_walk(ctx, rng):
     temporal-mean noise at the median pixel (the record's first frame at zero). D. W. Allan,
     "Statistics of atomic frequency standards", Proc. IEEE 54(2), 1966 (random-walk phase from
     white frequency noise); J. Rutman, "Characterization of phase and frequency instabilities in
-    precision frequency sources: fifteen years of progress", Proc. IEEE 66(9), 1978, sec. II."""
+    precision frequency sources: fifteen years of progress", Proc. IEEE 66(9), 1978."""
     b = rng.uniform(6.0, 12.0) * float(np.median(ctx.noise_mean_m))
     steps = rng.standard_normal(ctx.t)
     steps[0] = 0.0
@@ -766,7 +770,7 @@ def td_hotspot_overshoot(ctx, rng):
     tau_1)) - c (1 - e^(-t / tau_2)) scaled to peak 1 (tau_1 = 2-5 frames, tau_2 = 8-20, c =
     0.4-0.7: a rise, then a partial return); |b| = 6-12 x the temporal-mean noise at the median
     pixel. H. Sarbolandi, D. Lefloch, A. Kolb, "Kinect range sensing: structured-light versus
-    time-of-flight Kinect", Computer Vision and Image Understanding 139, 2015, sec. 5 (pre-heating:
+    time-of-flight Kinect", Computer Vision and Image Understanding 139, 2015 (pre-heating:
     the distance drifts until the device's temperature settles); P. Fuersattel et al., "A
     comparative error analysis of current time-of-flight sensors", IEEE Trans. Computational
     Imaging 2(1), 2016 (temperature drift); the two-time-constant curve and the spatial profile
@@ -807,10 +811,10 @@ def _disc(radius):
 def fp_defocus_disc(ctx, rng):
     """Defocus: the lens is focused at z_f (the scene's median depth x 0.6-1.2) and a point at
     depth z is spread over a disc of radius c |1 - z_f / z| pixels (thin-lens circle of confusion,
-    c = 0.8-1.6 px at infinity, at most 4 px), so near objects' returns spill onto the far background behind
-    their edges; computed by splatting depth layers (8 layers, 3 x 3 sub-pixels) with their own
-    discs, the complex signal summed. A. P. Pentland, "A new sense for depth of field", IEEE
-    Trans. PAMI 9(4), 1987, sec. 2 (the blur circle's radius against the depth); J. P. Godbaz,
+    c = 0.8-1.6 px at infinity, at most 4 px), so near objects' returns spill onto the far
+    background behind their edges; computed by splatting depth layers (8 layers, 3 x 3
+    sub-pixels) with their own discs, the complex signal summed. A. P. Pentland, "A new sense for depth of field", IEEE
+    Trans. PAMI 9(4), 1987 (the blur circle's radius against the depth); J. P. Godbaz,
     M. J. Cree, A. A. Dorrington, "Understanding and ameliorating mixed pixels and multipath
     interference in AMCW lidar", in TOF Range-Imaging Cameras, Springer 2013 (defocus mixing
     returns at edges)."""
@@ -860,8 +864,8 @@ def fp_pixel_crosstalk(ctx, rng):
     vertical one, a_h a_v to the diagonals; it mixes the complex returns of neighbouring pixels on
     the pixel grid, so a pixel next to a bright near edge takes up its phase. G. Agranov, V.
     Berezin, R. H. Tsai, "Crosstalk and microlens study in a color CMOS image sensor", IEEE Trans.
-    Electron Devices 50(1), 2003, sec. II-III (optical and electrical crosstalk, its asymmetry);
-    Lange and Seitz 2001 (above), sec. III (the diffusion of deep-generated charge)."""
+    Electron Devices 50(1), 2003 (optical and electrical crosstalk between pixels); the
+    row/column asymmetry is this generator's choice."""
     ah = rng.uniform(0.04, 0.10)
     av = ah * rng.uniform(0.3, 0.7)
     k = crosstalk_kernel(ah, av)
@@ -907,10 +911,10 @@ def mp_subsurface_objects(ctx, rng):
     exponentially distributed with mean l = 4-15 cm, so the return at harmonic n is multiplied by
     (1 - beta) + beta / (1 - i n omega l / c0): a delay (the object seen farther by about beta l /
     2) and a loss of amplitude, on the objects only. D. Freedman, Y. Smolin, E. Krupka, I.
-    Leichter, M. Schmidt, "SRA: fast removal of general multipath for ToF sensors", ECCV 2014, sec.
-    3 (the backscattering profile, including subsurface scattering); M. Gupta, S. K. Nayar, M. B.
+    Leichter, M. Schmidt, "SRA: fast removal of general multipath for ToF sensors", ECCV 2014 (the
+    backscattering profile, including subsurface scattering); M. Gupta, S. K. Nayar, M. B.
     Hullin, J. Martin, "Phasor imaging: a generalization of correlation-based time-of-flight
-    imaging", ACM Trans. Graphics 34(5), 2015, sec. 3 (global light: interreflections and
+    imaging", ACM Trans. Graphics 34(5), 2015 (global light: interreflections and
     subsurface scattering as a temporally spread return)."""
     beta = rng.uniform(0.5, 0.9)
     ell = rng.uniform(0.04, 0.15)
@@ -990,8 +994,8 @@ def nf_source_intensity_noise(ctx, rng):
     sub-frames of every frame gets its own emitted power (1 + s z_tk), z ~ N(0, 1), the same for
     all pixels (one source); the phase error (rms about s for m = 0.75) does not fall with the
     amplitude and depends on each pixel's phase; s = 2.5-5 x the per-frame phase noise at the
-    median pixel. K. Petermann, "Laser Diode Modulation and Noise", Kluwer 1988, ch. 7 (relative
-    intensity noise); R. Lange, PhD thesis, Univ. Siegen 2000, sec. 2.2 (the four samples taken
+    median pixel. K. Petermann, "Laser Diode Modulation and Noise", Kluwer 1988 (relative
+    intensity noise); R. Lange, PhD thesis, Univ. Siegen 2000 (the four samples taken
     one after the other)."""
     s = rng.uniform(2.5, 5.0) * float(np.median(noise_rad(ctx))) * math.sqrt(ctx.t)
     g = 1 + s * rng.standard_normal((ctx.t, N_PHASES, 1, 1))
@@ -1007,9 +1011,9 @@ def nf_row_clock_jitter(ctx, rng):
     """Row-wise clock jitter: the demodulation clock reaches each row through its own driver,
     whose timing jitters from frame to frame (Gaussian, the same along the row), so every frame
     has a random phase per row, independent of the amplitude; rms 2.5-5 x the per-frame phase
-    noise at the median pixel. C. S. Bamji et al., IEEE JSSC 50(1), 2015, sec. III (the
-    demodulation clock distributed to the array by drivers); EMVA Standard 1288 Rel. 4.0, 2021,
-    sec. 4.10 (temporal row noise as a separate term of the temporal noise)."""
+    noise at the median pixel. C. S. Bamji et al., IEEE JSSC 50(1), 2015 (the
+    demodulation clock distributed over the array by drivers); one driver per row and its
+    frame-to-frame jitter are this generator's assumptions from that layout."""
     sp = rng.uniform(2.5, 5.0) * float(np.median(noise_rad(ctx))) * math.sqrt(ctx.t)
     ph = sp * rng.standard_normal((ctx.t, 1, ctx.h, 1))
     return (
