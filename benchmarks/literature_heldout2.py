@@ -813,9 +813,9 @@ def fp_defocus_disc(ctx, rng):
     depth z is spread over a disc of radius c |1 - z_f / z| pixels (thin-lens circle of confusion,
     c = 0.8-1.6 px at infinity, at most 4 px), so near objects' returns spill onto the far
     background behind their edges; computed by splatting depth layers (8 layers, 3 x 3
-    sub-pixels) with their own discs, the complex signal summed. A. P. Pentland, "A new sense for depth of field", IEEE
-    Trans. PAMI 9(4), 1987 (the blur circle's radius against the depth); J. P. Godbaz,
-    M. J. Cree, A. A. Dorrington, "Understanding and ameliorating mixed pixels and multipath
+    sub-pixels) with their own discs, the complex signal summed. A. P. Pentland, "A new sense
+    for depth of field", IEEE Trans. PAMI 9(4), 1987 (the blur circle's radius against the
+    depth); J. P. Godbaz, M. J. Cree, A. A. Dorrington, "Understanding and ameliorating mixed pixels and multipath
     interference in AMCW lidar", in TOF Range-Imaging Cameras, Springer 2013 (defocus mixing
     returns at edges)."""
     c = rng.uniform(0.8, 1.6)
