@@ -815,9 +815,9 @@ def fp_defocus_disc(ctx, rng):
     background behind their edges; computed by splatting depth layers (8 layers, 3 x 3
     sub-pixels) with their own discs, the complex signal summed. A. P. Pentland, "A new sense
     for depth of field", IEEE Trans. PAMI 9(4), 1987 (the blur circle's radius against the
-    depth); J. P. Godbaz, M. J. Cree, A. A. Dorrington, "Understanding and ameliorating mixed pixels and multipath
-    interference in AMCW lidar", in TOF Range-Imaging Cameras, Springer 2013 (defocus mixing
-    returns at edges)."""
+    depth); J. P. Godbaz, M. J. Cree, A. A. Dorrington, "Understanding and ameliorating mixed
+    pixels and multipath interference in AMCW lidar", in TOF Range-Imaging Cameras, Springer 2013
+    (defocus mixing returns at edges)."""
     c = rng.uniform(0.8, 1.6)
     zf = float(np.median(ctx.geom["r"])) * rng.uniform(0.6, 1.2)
 
