@@ -298,3 +298,49 @@ def test_a_read_out_offset_of_a_camera_writing_z_is_learned_on_the_radial_distan
     back = type(learned).from_arrays(*learned.to_arrays())
     assert back.readout.focal_length_px == pytest.approx(f_px)
     torch.testing.assert_close(back.module()(d, a), learned.module()(d, a))
+
+
+def cylinders(rng: np.random.Generator) -> np.ndarray:
+    """A wall with two upright cylinders at random places: curved along x, the same in every row,
+    so inside one frame their curvature looks just like a column pattern."""
+    y, x = np.mgrid[0:H, 0:W].astype(float)
+    z = np.full((H, W), rng.uniform(1.5, 3.0)) + rng.uniform(-0.01, 0.01) * (x - W / 2)
+    for _ in range(2):
+        x0, r = rng.uniform(0, W), rng.uniform(10, 30)
+        bulge = np.sqrt(np.clip(1 - ((x - x0) / r) ** 2, 0, 1))
+        z = np.where(np.abs(x - x0) < r, z - rng.uniform(0.1, 0.4) * bulge, z)
+    return z
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_the_scenes_curvature_does_not_leak_into_the_columns_low_frequencies(seed):
+    """Periodic column stripes over frames of curved scenes: the curvature the halves of the
+    scenes do not share is shrunk band by band, so the estimate's error below a quarter of the
+    Nyquist frequency stays under 0.2 mm RMS (one Wiener factor for the whole profile: 0.8-1.1
+    mm)."""
+    rng = np.random.default_rng(seed)
+    x = np.arange(W)
+    s = 0.8 * np.cos(2 * np.pi * x / 3 + rng.uniform(0, 6)) + 0.6 * np.cos(np.pi * x)
+    pattern = np.broadcast_to((s - s.mean()) / s.std() * 0.002, (H, W))
+    truth = np.stack([cylinders(rng) for _ in range(8)])
+    noisy = torch.from_numpy(truth + pattern[None] + rng.normal(0, 0.002, truth.shape))[:, None]
+    learned = learn_folder_pattern(noisy)
+    assert learned.pattern is not None, learned.reason
+    err = (learned.pattern.offset_map().numpy() - pattern).mean(0)
+    spec = np.fft.rfft(err)
+    spec[len(spec) // 4 :] = 0
+    low = np.fft.irfft(spec, n=W)
+    assert np.sqrt(np.mean(low**2)) < 2e-4, np.sqrt(np.mean(low**2))
+
+
+def test_the_bands_sum_to_the_profile_and_hold_enough_frequencies():
+    theta = torch.from_numpy(np.random.default_rng(0).normal(size=(3, 160)))
+    bands = fp._bands(theta)
+    assert len(bands) == 4  # 81 frequencies: [0, 5) joins [5, 10), then 10, 20, 41
+    torch.testing.assert_close(sum(bands), theta)
+    for b in bands:
+        spec = torch.fft.rfft(b, dim=-1).abs().amax(0)
+        assert int((spec > 1e-9).sum()) >= fp.BAND_MIN_BINS
+    # disjoint bands: orthogonal
+    assert abs(float((bands[0] * bands[1]).sum())) < 1e-9
+    assert len(fp._bands(theta[:, :12])) == 1  # too few frequencies to split

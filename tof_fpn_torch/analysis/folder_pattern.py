@@ -40,7 +40,9 @@ half alone. A part is kept only when the halves agree: ``z = <a, b> / (sqrt(n) v
 :data:`MIN_Z` (``v``: the halves' error variance ``mean((a - b)^2) / 2``, ``n`` the part's
 values) -- a scene's structure that is not in every frame falls apart between the halves, noise
 does not correlate. The kept part is scaled by ``S / (S + v / 2)`` (``S = <a, b> / n``: the
-pattern's power the halves share; the Wiener factor of the whole folder's estimate).
+pattern's power the halves share; the Wiener factor of the whole folder's estimate), a profile in
+each of its frequency bands (:data:`BANDS`) on its own: the curvature of scenes that one half has
+and the other not falls into the low bands and is shrunk there without weakening stripes above.
 
 References: the second-difference (smoothness) prior of Tikhonov regularisation and the robust
 (Tukey) M-estimator of Beaton & Tukey, Technometrics 16(2), 1974; stripe / fixed-pattern models of
@@ -739,6 +741,35 @@ def _agreement(a: torch.Tensor, b: torch.Tensor) -> tuple[float, float, float]:
     return ab / (math.sqrt(n) * v), ab / n, v
 
 
+#: upper edges of the frequency bands of a profile (fractions of the Nyquist frequency): the halves
+#: are compared, and the estimate shrunk, in each band on its own (octaves up to a quarter)
+BANDS = (1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0)
+#: a band holds at least this many frequencies (narrower ones join the next): the halves'
+#: agreement on fewer is too noisy to shrink by
+BAND_MIN_BINS = 8
+
+
+def _bands(theta: torch.Tensor) -> list[torch.Tensor]:
+    """``theta`` (..., W) split along its last axis into the frequency bands of :data:`BANDS`
+    (at least :data:`BAND_MIN_BINS` frequencies each, the last takes the rest; they sum to
+    ``theta``)."""
+    n = theta.shape[-1]
+    spec = torch.fft.rfft(theta, dim=-1)
+    f = torch.arange(spec.shape[-1], dtype=torch.float64) * (2.0 / n)  # fraction of Nyquist
+    out, start = [], 0
+    for hi in BANDS[:-1]:
+        stop = int((f < hi).sum())
+        if stop - start >= BAND_MIN_BINS and f.numel() - stop >= BAND_MIN_BINS:
+            m = torch.zeros_like(f)
+            m[start:stop] = 1.0
+            out.append(torch.fft.irfft(spec * m, n=n, dim=-1))
+            start = stop
+    m = torch.zeros_like(f)
+    m[start:] = 1.0
+    out.append(torch.fft.irfft(spec * m, n=n, dim=-1))
+    return out
+
+
 def _confirmed(
     d: torch.Tensor,
     var: torch.Tensor,
@@ -757,22 +788,29 @@ def _confirmed(
     parts, kept = {}, {}
     b = torch.ones_like(d)[None] if basis is None else basis
     seen = torch.isfinite(d)
-    for name in PARTS:
+
+    def effect(name: str, x: torch.Tensor) -> torch.Tensor:
+        """What a part's estimate does to the depth: a read-out's channels can trade off where
+        the phase hardly varies, so its columns are compared on the depth of every frame."""
         if name == "columns" and basis is not None:
-            # a read-out's channels can trade off where the phase hardly varies: the halves are
-            # compared on what they do to the depth of every frame, not on their profiles
-            pair = [torch.nan_to_num((h["columns"][:, None, None, :] * b).sum(0)[seen])
-                    for h in (half_a, half_b)]  # fmt: skip
-            z, s, v = _agreement(*pair)
-        else:
-            z, s, v = _agreement(half_a[name], half_b[name])
-        factor = s / (s + v / 2) if (s > 0 and z >= min_z) else 0.0
-        est = factor * full[name]
-        if name == "columns":  # its depth effect over the frames (the read-out's varies)
-            effect = torch.nan_to_num((est[:, None, None, :] * b).sum(0)[seen])
-            rms = float(effect.pow(2).mean().sqrt()) if effect.numel() else 0.0
-        else:
-            rms = float(est.pow(2).mean().sqrt()) if est.numel() else 0.0
+            return torch.nan_to_num((x[:, None, None, :] * b).sum(0)[seen])
+        return x
+
+    for name in PARTS:
+        z, _, _ = _agreement(effect(name, half_a[name]), effect(name, half_b[name]))
+        est = torch.zeros_like(full[name])
+        if z >= min_z:
+            if name == "pixels":
+                split = [(full[name], half_a[name], half_b[name])]
+            else:  # per band: a scene's smooth leak agrees less between the halves than stripes
+                split = zip(*(_bands(h[name]) for h in (full, half_a, half_b)), strict=True)
+            for f_b, a_b, b_b in split:
+                _, s, v = _agreement(effect(name, a_b), effect(name, b_b))
+                if s > 0:
+                    est = est + s / (s + v / 2) * f_b
+        full_rms = float(effect(name, full[name]).pow(2).mean().sqrt())
+        rms = float(effect(name, est).pow(2).mean().sqrt()) if est.numel() else 0.0
+        factor = rms / full_rms if full_rms > 0 else 0.0
         if rms < MIN_RMS_MM:
             factor, rms = 0.0, 0.0
         parts[name] = {"rms_mm": round(rms, 4), "z": round(z, 2), "factor": round(factor, 4)}
