@@ -116,3 +116,21 @@ def test_gated_stage_scripts_and_equals_eager():
     stage = suppression_from_design()
     scripted = torch.jit.script(stage)
     torch.testing.assert_close(scripted(x, amp), stage(x, amp))
+
+
+@pytest.mark.parametrize("shape, window", [((2, 1, 7, 9), 3), ((1, 1, 5, 3), 5), ((1, 1, 2, 2), 3)])
+def test_the_local_mean_of_noise_power_equals_avg_pool2d(shape, window):
+    """The window's mean inside the frame as shifted sums equals torch's ``avg_pool2d`` without
+    padding counts (the reference), with and without invalid blocks."""
+    from torch.nn import functional as F
+
+    from tof_fpn_torch.runtime.gate import _box_count, _box_sum
+
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(shape, generator=g, dtype=torch.float64)
+    ok = (torch.rand(shape, generator=g) > 0.3).double()
+    r = window // 2
+    ref = F.avg_pool2d(x, window, 1, r, False, False)
+    torch.testing.assert_close(_box_sum(x, r) / _box_count(x, r), ref)
+    ref_ok = F.avg_pool2d(ok, window, 1, r, False, False)
+    torch.testing.assert_close(_box_sum(ok, r) / _box_count(x, r), ref_ok)

@@ -202,6 +202,33 @@ def line_gate(
     return gate.view(-1, 1, 1, 1), power.view(-1, 1, 1, 1)
 
 
+def _box_sum(x: torch.Tensor, r: int) -> torch.Tensor:
+    """Sum of ``x`` (..., H, W) over the (2r + 1) x (2r + 1) window around each element, zero
+    outside the frame (shifted adds: exact in the order of the window's offsets)."""
+    out = x
+    for dim in [-1, -2]:
+        n = out.shape[dim]
+        acc = out.clone()
+        for k in range(1, min(r, n - 1) + 1):
+            acc.narrow(dim, k, n - k).add_(out.narrow(dim, 0, n - k))
+            acc.narrow(dim, 0, n - k).add_(out.narrow(dim, k, n - k))
+        out = acc
+    return out
+
+
+def _inside(n: int, r: int, like: torch.Tensor) -> torch.Tensor:
+    """(n,) number of the 2r + 1 positions around each index that lie in ``[0, n)``."""
+    i = torch.arange(n, device=like.device)
+    return (torch.clamp(i, max=r) + torch.clamp(n - 1 - i, max=r) + 1).to(like.dtype)
+
+
+def _box_count(x: torch.Tensor, r: int) -> torch.Tensor:
+    """(H, W) number of elements of the (2r + 1)-square window around each element of ``x``
+    (..., H, W) that lie inside the frame."""
+    h, w = x.shape[-2], x.shape[-1]
+    return _inside(h, r, x)[:, None] * _inside(w, r, x)[None, :]
+
+
 def noise_power(
     x: torch.Tensor,
     amplitude: torch.Tensor | None,
@@ -241,11 +268,13 @@ def noise_power(
     else:
         law = (clipped_scale(d, ok4, [-3, -2, -1]).clamp_min(1e-30) ** 2).expand_as(d)
     r = window // 2
-    # the local mean of d^2 over the window's usable blocks (count_include_pad=False: borders)
-    local = torch.nn.functional.avg_pool2d(d * d, window, 1, r, False, False)
-    if not dense:
-        den = torch.nn.functional.avg_pool2d(ok4.to(x.dtype), window, 1, r, False, False)
-        local = local / den.clamp_min(1e-30)
+    # the local mean of d^2 over the window's usable blocks (inside the frame: borders average
+    # fewer), as shifted sums along each axis (a 3 x 3 avg_pool2d costs several times as much)
+    local = _box_sum(d * d, r)
+    if dense:
+        local = local / _box_count(local, r)
+    else:
+        local = local / _box_sum(ok4.to(x.dtype), r).clamp_min(1e-30)
     var = torch.minimum(law, local)
     if not dense:
         var = torch.where(ok4, var, torch.zeros_like(d))
