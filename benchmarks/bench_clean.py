@@ -1,4 +1,4 @@
-"""Throughput of ``tof-fpn clean`` against the plain loop a user would write (issue 9, must-show).
+"""Throughput of ``tof-fpn clean`` against the plain loop a user would write.
 
 Input: ``--frames`` synthetic 424 x 512 16-bit PNG depth + amplitude pairs (Kinect v2 size: a
 sloped scene in mm, stripes at pi and 2 pi / 3, noise, 1 % invalid pixels; amplitude counts in the

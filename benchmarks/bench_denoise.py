@@ -1,4 +1,4 @@
-"""The denoisers of tof_fpn_torch.denoise against their peers, every must-show number of issue 11
+"""The denoisers of tof_fpn_torch.denoise against their peers, every figure they are measured by
 in one run, written to docs/figures/denoise_bench.json (tables printed as Markdown).
 
 Sections:

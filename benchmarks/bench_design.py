@@ -1,4 +1,4 @@
-"""Benchmark the offline FPN design (issue 2): one design, and the whole Fig. 5 family.
+"""Benchmark the offline FPN design: one design, and the whole Fig. 5 family.
 
 Targets: one design <= 10 ms median for N <= 60; 13 orders x 50 values of rho in < 5 s (2 cores).
 For scale, ``scipy.signal.remez`` (constant specs only, compiled C) designs a filter of the same

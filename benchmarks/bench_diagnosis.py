@@ -1,4 +1,4 @@
-"""Concealed-effect benchmark of ``tof_fpn_torch.diagnosis`` (issue 10).
+"""Concealed-effect benchmark of ``tof_fpn_torch.diagnosis``.
 
 Recordings come from ``benchmarks/concealed_generator.py`` (NumPy, its own formulas, richer than the
 diagnosing model), one effect at a time plus null recordings, over several scenes, seeds and

@@ -1,4 +1,4 @@
-"""A learned depth denoiser behind four front ends, trained on simulated frames (issue 12).
+"""A learned depth denoiser behind four front ends, trained on simulated frames.
 
 Usage::
 

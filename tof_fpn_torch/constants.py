@@ -160,7 +160,7 @@ MULTIPATH_NEAR_FIELD_M: float = 1.0
 MULTIPATH_RELAY_STEP: int = 8
 MULTIPATH_MAX_SOURCES: int = 300
 
-# --- Table II (real-case data) and its protocol (Sec. IV-A, IV-C; issue 11) --------------------
+# --- Table II (real-case data) and its protocol (Sec. IV-A, IV-C) --------------------
 #: Integration times of Table II's low-sensing captures, s.
 TABLE2_INTEGRATION_TIMES: tuple[float, ...] = (50e-6, 100e-6, 200e-6)
 #: Ground truth: the mean of this many frames at the normal-mode integration time below.
