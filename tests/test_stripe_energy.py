@@ -230,3 +230,14 @@ def test_a_frame_stored_unchanged_has_the_record_of_its_first_formulation(h, w):
             assert f == (None if r is None else pytest.approx(r, rel=1e-9, abs=1e-12))
     for key in ("noise_mm", "lowpass_change_mm", "changed"):
         assert fast[key] == (None if ref[key] is None else pytest.approx(ref[key], abs=1e-12))
+
+
+def test_the_lower_median_equals_torchs_median_over_the_valid_pixels():
+    from tof_fpn_torch.analysis.stripe_energy import _lower_median
+
+    g = torch.Generator().manual_seed(3)
+    for n in (1, 2, 7, 10, 1001):
+        a = torch.rand(1, 1, 1, n, generator=g)
+        v = torch.rand(1, 1, 1, n, generator=g) > 0.3
+        v[..., 0] = True
+        assert _lower_median(a, v) == float(a[v].median())  # the lower middle value
