@@ -237,18 +237,24 @@ def stripe_power_by_amplitude(
     edges = torch.quantile(av, torch.linspace(0, 1, nb + 1, dtype=torch.float64))
     edges = torch.unique(edges)  # equal quantiles (a clipped amplitude) merge their bins
     index = torch.bucketize(av, edges[1:-1], right=True)
-    dv, sv, kv = change[valid], sigma2[valid], keep[valid]
-    rv, ov, hv = other[valid], own[valid], side[valid]
+    # the pixels sorted by bin once (stable: each bin keeps the pixels' order), each bin a slice
+    order = torch.argsort(index, stable=True)
+    counts = torch.bincount(index, minlength=edges.numel() - 1).tolist()
+    av, dv, sv, kv = av[order], change[valid][order], sigma2[valid][order], keep[valid][order]
+    rv, ov, hv = other[valid][order], own[valid][order], side[valid][order]
     rows = {k: [] for k in ("amplitude", "pixels", "stripe", "noise", "change")}
-    for b in range(edges.numel() - 1):
-        m = index == b
-        if not bool(m.any()):
+    start = 0
+    for count in counts:
+        m = slice(start, start + count)
+        start += count
+        if count == 0:
             continue
+        k = kv[m]
         rows["amplitude"].append(float(av[m].median()))
-        rows["pixels"].append(float(m.sum()))
+        rows["pixels"].append(float(count))
         rows["noise"].append(float(sv[m].mean()))
         rows["change"].append(float((dv[m] ** 2).mean()))
-        rows["stripe"].append(_bin_stripe_power(dv[m & kv], rv[m & kv], ov[m & kv], hv[m & kv]))
+        rows["stripe"].append(_bin_stripe_power(dv[m][k], rv[m][k], ov[m][k], hv[m][k]))
     t = {k: torch.tensor(v, dtype=torch.float64) for k, v in rows.items()}
     return AmplitudeBins(
         edges, t["amplitude"], t["pixels"], t["stripe"], t["noise"], t["change"], _centre(filter)
