@@ -52,3 +52,22 @@ def test_a_planted_pixel_gain_is_still_named():
     rec, scene = bl.to_inputs(r)
     d = diagnose(rec, scene, seed=0)
     assert d.effects[:1] == ["pixel_gain"], d.report["effects"]
+
+
+def test_a_source_pattern_does_not_move_the_field_of_view():
+    """The LED's radiation pattern (``cos^m`` of the field angle, about 40 % fall-off in the
+    corners) on a field of objects: the field of view of the angle of incidence stays the
+    camera's (a choice that lets the cosines take up the fall-off lands near 41 degrees)."""
+    rec, scene = _inputs("vignetting", "led_lambertian", 18)
+    v = _baseline(observe(rec, scene), None).values
+    assert v[INCIDENCE_KEY] == 1.0
+    assert abs(v[FOV_KEY] - lg.HFOV_DEG) <= 6.0
+
+
+@pytest.mark.slow
+def test_a_source_pattern_is_named_vignetting_alone():
+    """... and the recording is named ``vignetting`` alone (not ``pixel_gain`` for the tilted
+    surfaces' light misfit at a wrong field of view)."""
+    rec, scene = _inputs("vignetting", "led_lambertian", 18)
+    d = diagnose(rec, scene, seed=0)
+    assert d.effects == ["vignetting"], d.report["effects"]
