@@ -350,11 +350,20 @@ def _radial_basis(shape, ok: torch.Tensor) -> torch.Tensor:
 
 
 def _without_radial(r: torch.Tensor, basis: torch.Tensor, w=None) -> torch.Tensor:
-    """``r`` less its (weighted, ``w``) least-squares fit on ``basis`` (:func:`_radial_basis`)."""
+    """``r`` less its (weighted, ``w``) least-squares fit on ``basis`` (:func:`_radial_basis`),
+    refitted once without the values beyond 3.5 sd (by the median absolute deviation) of the
+    first fit: a few spoilt pixels (a hot pixel's amplitude) must not bend the fall-off."""
     r = r.to(torch.float64)
     sw = torch.ones_like(r) if w is None else w.to(torch.float64).sqrt()
     coef = torch.linalg.lstsq(basis * sw[:, None], (r * sw)[:, None]).solution
-    return r - (basis @ coef)[:, 0]
+    e = r - (basis @ coef)[:, 0]
+    dev = (e - e.median()).abs()
+    keep = dev <= 3.5 * 1.4826 * dev.median()
+    if int(keep.sum()) >= 16:
+        sk = sw[keep]
+        coef = torch.linalg.lstsq(basis[keep] * sk[:, None], (r[keep] * sk)[:, None]).solution
+        e = r - (basis @ coef)[:, 0]
+    return e
 
 
 @dataclass
