@@ -51,6 +51,7 @@ __all__ = [
     "LAMBERT_SHARE",
     "OPEN_BEND",
     "PLAIN_SPREAD",
+    "RADIAL_TOLERANCE",
     "SMOOTH_BEND",
     "IncidentPhotons",
     "choose_incidence",
@@ -91,6 +92,10 @@ SMOOTH_BEND: float = 0.1
 #: angle is at most this share of that without it (a power of the field angle such as a cos^4
 #: vignette on a wall facing the camera leaves 3/4 of it).
 LAMBERT_SHARE: float = 0.5
+#: The field of view chosen from the log amplitude ratios as they are is replaced by the one
+#: chosen with a radial fall-off removed when, with that fall-off removed, it leaves a median
+#: absolute deviation more than this share above the least (:func:`choose_incidence`).
+RADIAL_TOLERANCE: float = 0.25
 #: The amplitude ratios of pixels darker than this share of the median amplitude do not enter the
 #: choice (their noise dominates the log ratio).
 _DIM_SHARE: float = 0.2
@@ -249,31 +254,52 @@ def choose_incidence(obs, a0: torch.Tensor, ok: torch.Tensor) -> dict:
     """``{INCIDENCE_KEY, FOV_KEY}`` from the observed amplitude means against the model's ``a0``
     without the angle (H, W) on the pixels ``ok`` (module docstring): the median absolute
     deviation of ``log(m_a / a0)`` from its median, as it is and with ``log cos`` taken off at
-    each field of view of :data:`FIELDS_OF_VIEW` (then refined around the best)."""
+    each field of view of :data:`FIELDS_OF_VIEW` (then refined around the best).
+
+    A fall-off with the field angle (a lens's vignette, the source's radiation pattern) is a
+    smooth misfit even in the distance from the frame's centre, which the cosines at a wrong
+    field of view take up in part (an LED pattern moved the choice from 70 to about 43 degrees,
+    the tilted surfaces' light then misfit pixel by pixel). So the deviations are also taken
+    with such a fall-off removed (:func:`_radial_basis`); where the field of view chosen as it
+    is leaves more than :data:`RADIAL_TOLERANCE` above the least of those, the field of view is
+    the one that leaves the least (a scene with surfaces of several angles tells it; a wall
+    facing the camera alone does not, and keeps the first choice). Lambert's law is taken when
+    either way leaves at most :data:`LAMBERT_SHARE` of the deviation without the angle."""
     none = {INCIDENCE_KEY: 0.0, FOV_KEY: FIELDS_OF_VIEW[len(FIELDS_OF_VIEW) // 2]}
     ok = ok & (a0 > 0) & (obs.m_a > 0) & obs.known
     if int(ok.sum()) < 16:
         return none
     ok = ok & (obs.m_a > _DIM_SHARE * obs.m_a[ok].median())
     y = torch.log(obs.m_a[ok] / a0[ok])
+    radial = _radial_basis(obs.m_a.shape, ok)
 
-    def deviation(r: torch.Tensor) -> float:
+    def deviation(r: torch.Tensor, flat: bool = False) -> float:
+        if flat:
+            r = _without_radial(r, radial)
         return float((r - r.median()).abs().median())
 
-    def lambert(fov: float) -> tuple[float, float]:
-        return deviation(y - torch.log(incidence_cosine(obs.scene_depth, fov))[ok]), fov
+    def lambert(fov: float, flat: bool = False) -> tuple[float, float]:
+        return deviation(y - torch.log(incidence_cosine(obs.scene_depth, fov))[ok], flat), fov
 
-    best = min(lambert(f) for f in FIELDS_OF_VIEW)
-    step = FIELDS_OF_VIEW[1] - FIELDS_OF_VIEW[0]
-    fine = [best[1] - step + FOV_STEP * i for i in range(int(round(2 * step / FOV_STEP)) + 1)]
-    lo, hi = FIELDS_OF_VIEW[0], FIELDS_OF_VIEW[-1]
-    best = min([best, *(lambert(f) for f in fine if lo <= f <= hi)])
-    if best[0] > LAMBERT_SHARE * deviation(y):
+    def search(flat: bool) -> tuple[float, float]:
+        best = min(lambert(f, flat) for f in FIELDS_OF_VIEW)
+        step = FIELDS_OF_VIEW[1] - FIELDS_OF_VIEW[0]
+        fine = [best[1] - step + FOV_STEP * i for i in range(int(round(2 * step / FOV_STEP)) + 1)]
+        lo, hi = FIELDS_OF_VIEW[0], FIELDS_OF_VIEW[-1]
+        return min([best, *(lambert(f, flat) for f in fine if lo <= f <= hi)])
+
+    best = search(False)
+    flat = search(True)
+    plain_law = best[0] <= LAMBERT_SHARE * deviation(y)
+    flat_law = flat[0] <= LAMBERT_SHARE * deviation(y, True)
+    if not (plain_law or flat_law):
         return none
+    if lambert(best[1], True)[0] > (1.0 + RADIAL_TOLERANCE) * flat[0]:
+        return {INCIDENCE_KEY: 1.0, FOV_KEY: _settle(obs, y, ok, flat[1], radial)}
     return {INCIDENCE_KEY: 1.0, FOV_KEY: _settle(obs, y, ok, best[1])}
 
 
-def _settle(obs, y: torch.Tensor, ok: torch.Tensor, fov: float) -> float:
+def _settle(obs, y: torch.Tensor, ok: torch.Tensor, fov: float, radial=None) -> float:
     """The field of view near ``fov`` (within ``FOV_STEP + 1`` degrees, in steps of
     :data:`FOV_SETTLE_STEP`) whose cosines leave the least weighted sum of squares of ``y`` (the
     log amplitude ratios of the pixels ``ok``) on the pixels whose surface the depth map gives
@@ -281,7 +307,9 @@ def _settle(obs, y: torch.Tensor, ok: torch.Tensor, fov: float) -> float:
     3.5 sd by the median absolute deviation): the median absolute deviation that decided the
     law is robust but wastes most of the information, and a field of view 2 degrees off leaves a
     misfit growing towards the frame's corners that a bright recording shows. Weights ``m_a``
-    (the shot-noise variance of ``log A`` falls as ``1 / A``)."""
+    (the shot-noise variance of ``log A`` falls as ``1 / A``). With ``radial``
+    (:func:`_radial_basis` on the pixels ``ok``), a fall-off even in the distance from the
+    frame's centre is taken off by the same weighted least squares at each field of view."""
     logc = torch.log(incidence_cosine(obs.scene_depth, fov))[ok]
     r = y - logc
     dev = (r - r.median()).abs()
@@ -299,9 +327,43 @@ def _settle(obs, y: torch.Tensor, ok: torch.Tensor, fov: float) -> float:
         if not FIELDS_OF_VIEW[0] <= f <= FIELDS_OF_VIEW[-1]:
             continue
         rk = yk - torch.log(incidence_cosine(obs.scene_depth, f))[ok][keep]
-        mean = (w * rk).sum() / w.sum()
-        best = min(best, (float((w * (rk - mean) ** 2).sum()), f))
+        if radial is None:
+            rk = rk - (w * rk).sum() / w.sum()
+        else:
+            rk = _without_radial(rk, radial[keep], w)
+        best = min(best, (float((w * rk**2).sum()), f))
     return best[1]
+
+
+def _radial_basis(shape, ok: torch.Tensor) -> torch.Tensor:
+    """``(n, 3)``: 1, ``q^2`` and ``q^4`` at the pixels ``ok`` of an image of ``shape`` (H, W),
+    ``q`` the distance from the frame's centre over half its width: a fall-off of the light
+    with the field angle (a lens's vignette, the source's radiation pattern) is smooth and even
+    in it, and an angle of incidence at the wrong field of view would take it up (on a wall
+    facing the camera, ``cos theta_inc`` is itself the cosine of the field angle)."""
+    h, w = shape
+    yy = torch.arange(h, dtype=torch.float64) - (h - 1) / 2
+    xx = torch.arange(w, dtype=torch.float64) - (w - 1) / 2
+    q2 = (yy[:, None] ** 2 + xx[None, :] ** 2) / (w / 2) ** 2
+    q2 = q2[ok]
+    return torch.stack([torch.ones_like(q2), q2, q2**2], 1)
+
+
+def _without_radial(r: torch.Tensor, basis: torch.Tensor, w=None) -> torch.Tensor:
+    """``r`` less its (weighted, ``w``) least-squares fit on ``basis`` (:func:`_radial_basis`),
+    refitted once without the values beyond 3.5 sd (by the median absolute deviation) of the
+    first fit: a few spoilt pixels (a hot pixel's amplitude) must not bend the fall-off."""
+    r = r.to(torch.float64)
+    sw = torch.ones_like(r) if w is None else w.to(torch.float64).sqrt()
+    coef = torch.linalg.lstsq(basis * sw[:, None], (r * sw)[:, None]).solution
+    e = r - (basis @ coef)[:, 0]
+    dev = (e - e.median()).abs()
+    keep = dev <= 3.5 * 1.4826 * dev.median()
+    if int(keep.sum()) >= 16:
+        sk = sw[keep]
+        coef = torch.linalg.lstsq(basis[keep] * sk[:, None], (r[keep] * sk)[:, None]).solution
+        e = r - (basis @ coef)[:, 0]
+    return e
 
 
 @dataclass
