@@ -11,6 +11,7 @@ import literature_heldout2 as l2
 import numpy as np
 import pytest
 from scipy import ndimage
+from test_literature_generator import check_recording
 
 SIZE = (36, 48, 6)
 NEW = [(f, fo) for f in l2.HELDOUT2_FORMS for fo in l2.HELDOUT2_FORMS[f]]
@@ -41,24 +42,7 @@ def _plan(builder, ctx, seed=1):
 @pytest.mark.parametrize("family,form", NEW + [("none", "null")])
 def test_shapes_dtypes_meta_and_nan_only_where_invalid(family, form):
     r = l2.generate(family, form, l2.SEED0 + 3, SIZE)
-    h, w, t = SIZE
-    assert r["depth"].shape == (t, h, w) and r["depth"].dtype == np.float32
-    assert r["amplitude"].shape == (t, h, w) and r["amplitude"].dtype == np.float32
-    assert r["raw"].shape == (t, 4, h, w) and r["raw"].dtype == np.float32
-    assert r["scene_depth"].shape == (h, w) and r["scene_depth"].dtype == np.float64
-    assert r["reflectance"].shape == (h, w)
-    assert r["meta"]["n_phases"] == 4 and r["meta"]["amplitude_unit"] == "DN"
-    assert r["meta"]["modulation_frequency_hz"] == lg.F_MOD
-    assert r["meta"]["source"] == "benchmarks/literature_generator.py"
-    assert r["meta"]["integration_time_us"] > 0
-    assert 0.3 <= r["scene_depth"].min() and r["scene_depth"].max() <= 6.0
-    assert 0.05 <= r["reflectance"].min() and r["reflectance"].max() <= 0.95
-    raw = r["raw"]
-    assert raw.min() >= 0 and raw.max() <= 65535 and np.all(raw == np.round(raw))
-    invalid = (r["amplitude"] < lg.AMP_MIN_DN) | (r["depth"] == 0)
-    assert np.array_equal(np.isnan(r["depth"]), invalid)
-    d = r["depth"][~invalid]
-    assert d.min() > 0 and d.max() < lg.RANGE_M
+    check_recording(r, SIZE, 0.3)
     tr = r["truth"]
     assert (tr["family"], tr["form"], tr["part"]) == (family, form, "heldout2")
     assert tr["scene"] in l2.HELDOUT2_SCENES
