@@ -134,3 +134,49 @@ def test_the_local_mean_of_noise_power_equals_avg_pool2d(shape, window):
     torch.testing.assert_close(_box_sum(x, r) / _box_count(x, r), ref)
     ref_ok = F.avg_pool2d(ok, window, 1, r, False, False)
     torch.testing.assert_close(_box_sum(ok, r) / _box_count(x, r), ref_ok)
+
+
+@pytest.mark.parametrize(
+    "maker,h,w,k,stripe,earlier",
+    [
+        # outliers taken from the residual with the stripes in it dropped pixels in step with the
+        # stripe's phase and modulated the scene into the line: -3.47 dB
+        (synthetic_scene, 1024, 1280, 0.3, 0.03, [0.3]),
+        (planar_scene, 191, 255, 0.3, 0.03, [0.3]),  # -0.26 dB
+        (synthetic_scene, 191, 255, 1.0, 0.1, [0.3, 0.3]),  # the scene's grating and star
+    ],
+)
+def test_scene_content_at_the_notch_frequency_does_not_pass_for_stripes(
+    maker, h, w, k, stripe, earlier
+):
+    """The frames of ``benchmarks/check_real_and_sizes.py`` (scene seed 3; the noise generator
+    has drawn the ``earlier`` frames' noise first)."""
+    sc = maker(h, w, seed=3)
+    g = torch.Generator().manual_seed(1)
+    for k0 in earlier:
+        add_depth_noise(sc.depth, sc.amplitude, k0 * k0, amplitude_floor=5.0, generator=g)
+    x = add_depth_noise(sc.depth, sc.amplitude, k * k, amplitude_floor=5.0, generator=g)
+    n = torch.arange(w, dtype=torch.float32)
+    x = x + stripe * torch.cos(math.pi * n) + 2 / 3 * stripe * torch.cos(2 * math.pi / 3 * n + 0.7)
+    y = suppression_from_design()(x, sc.amplitude)
+    assert float(psnr(y, sc.depth)) >= float(psnr(x, sc.depth)) - 0.01
+
+
+def test_the_stripe_power_is_what_every_band_of_rows_shares():
+    """A depth grating at the notch frequency on a quarter of the rows is scene, not stripe: the
+    line's power is the one the stripes alone give (within 25 %), not the grating's."""
+    from tof_fpn_torch.runtime.gate import line_gate
+
+    h, w = 256, 320
+    g = torch.Generator().manual_seed(0)
+    n = torch.arange(w, dtype=torch.float64)
+    x = 2.0 + 0.002 * torch.randn(1, 1, h, w, generator=g, dtype=torch.float64)
+    x = x + 0.0005 * torch.arange(h, dtype=torch.float64)[:, None]  # a slope down the frame
+    x[..., 40:104, :] += 0.02 * torch.cos(2 * math.pi / 3 * n + 0.3)  # the grating: 64 rows
+    a1, a2 = 0.004, 0.003
+    x = x + a1 * torch.cos(math.pi * n) + a2 * torch.cos(2 * math.pi / 3 * n + 1.1)
+    st = suppression_from_design()
+    f = st.filter(x.float(), None).double()
+    _, power = line_gate(x, f, None, st.filter.dims, st.filter.notches, st.noise_gain)
+    true = a1**2 + a2**2 / 2
+    assert abs(float(power) / true - 1.0) < 0.25, (float(power), true)
