@@ -165,23 +165,18 @@ def _median(v: torch.Tensor) -> torch.Tensor:
 
 
 def _common_line(
-    parts: list[torch.Tensor], w0: float, notches: list[float], references: int
+    parts: torch.Tensor, w0: float, notches: list[float], references: int
 ) -> torch.Tensor:
-    """(B,) the magnitude of the line at ``w0`` that the bands' profiles ``parts`` (each (B, L))
+    """(B,) the magnitude of the line at ``w0`` that the bands' profiles ``parts`` (B, n, L)
     share, in units of the window's sum: the median over the bands of the real and of the
     imaginary part of their windowed DFTs, its power less the noise the median leaves in it
     (``(pi / 2) / n`` of the bands' mean reference power: the variance of a median of ``n``)."""
-    re: list[torch.Tensor] = []
-    im: list[torch.Tensor] = []
-    ref: list[torch.Tensor] = []
-    for q in parts:
-        r, i, _ = _line_dft(q, w0, notches, references)
-        re.append(r[:, 0])
-        im.append(i[:, 0])
-        ref.append((r[:, 1:] * r[:, 1:] + i[:, 1:] * i[:, 1:]).sum(1) / float(references))
-    n = float(len(parts))
-    c_re, c_im = _median(torch.stack(re, 1)), _median(torch.stack(im, 1))
-    noise = 0.5 * math.pi / n * torch.stack(ref, 1).sum(1) / n
+    b, n = parts.shape[0], parts.shape[1]
+    re, im, _ = _line_dft(parts.flatten(0, 1), w0, notches, references)
+    re, im = re.view(b, n, -1), im.view(b, n, -1)
+    ref = (re[:, :, 1:] * re[:, :, 1:] + im[:, :, 1:] * im[:, :, 1:]).sum(2) / float(references)
+    c_re, c_im = _median(re[:, :, 0]), _median(im[:, :, 0])
+    noise = 0.5 * math.pi / float(n) * ref.sum(1) / float(n)
     return (c_re * c_re + c_im * c_im - noise).clamp_min(0.0).sqrt()
 
 
@@ -269,9 +264,8 @@ def line_gate(
             scale = 1.0 if abs(w0 - math.pi) < 1e-9 else 0.5  # a cos at w0 < pi: half in w0
             amp = (p0 - ref).clamp_min(0.0).sqrt() / (scale * wsum)
             if len(parts) >= 2:
-                amp = torch.minimum(
-                    amp, _common_line(parts, w0, notches, references) / (scale * wsum)
-                )
+                line = _common_line(torch.stack(parts, 1), w0, notches, references)
+                amp = torch.minimum(amp, line / (scale * wsum))
             power = power + amp * amp * (1.0 if scale == 1.0 else 0.5)  # per pixel
             g = ((t - t_a) / t_a).clamp(0.0, 1.0)
             if min_stripe > 0:
