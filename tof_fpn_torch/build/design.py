@@ -89,9 +89,10 @@ def _design(
         raise DesignRefused(
             f"the design {{order {order}, rho {rho:g}}} for notches "
             f"{[round(w, 4) for w in design.notches]} has a passband ripple of "
-            f"{design.ripple_db:.1f} dB (DC gain {design.dc_gain:.3f}); the stage needs "
-            f"<= {max_ripple_db:g} dB: use a higher order or a larger rho (max_ripple_db=None "
-            "accepts it anyway)"
+            f"{design.ripple_db:.1f} dB (its passband gain strays from 1 by up to "
+            f"{10 ** (design.ripple_db / 20):.2f}; DC gain {design.dc_gain:.3f}); the stage "
+            f"needs <= {max_ripple_db:g} dB (up to {10 ** (max_ripple_db / 20):.2f}): use a "
+            "higher order or a larger rho (max_ripple_db=None accepts it anyway)"
         )
     taps = design.taps
     compensated = bool(compensate_delay) and taps.size % 2 == 0
