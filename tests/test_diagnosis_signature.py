@@ -12,6 +12,8 @@ import torch
 from tof_fpn_torch.diagnosis.signature import (
     FINE_SCALE_PX,
     common_share,
+    defect_pixels,
+    dense_share,
     fine_share,
     sporadic_share,
 )
@@ -79,18 +81,45 @@ def test_fine_share_of_the_phasor_sees_depth_columns():
 
 
 def test_sporadic_share_tells_impulses_from_a_fixed_misfit():
-    """Outliers in a quarter of the frames of their pixels: all sporadic; the same pixels off in
-    every frame: none; no outlier: None."""
+    """Outliers in a quarter of the frames of their pixels: all sporadic; a block of pixels off
+    in every frame: none; lone pixels far off in every frame (hot pixels, a defect of each
+    pixel alone): all; no outlier: None."""
     depth = torch.full((H, W), 2.0, dtype=torch.float64)
     frames = depth.expand(T, H, W).clone()
     gen = torch.Generator().manual_seed(2)
     hot = torch.rand(H, W, generator=gen) < 0.01
     fire = torch.rand(T, H, W, generator=gen) < 0.25
     sporadic = torch.where(hot & fire, frames + 1.0, frames)
-    fixed = torch.where(hot.expand(T, H, W), frames + 1.0, frames)
-    assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=sporadic)) == 1.0
-    assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=fixed)) == 0.0
-    assert sporadic_share(*_case(0.0 * depth, depth=depth, frames=frames)) is None
+    block = torch.zeros(H, W, dtype=torch.bool)
+    block[10:20, 10:30] = True
+    fixed = torch.where(block.expand(T, H, W), frames + 1.0, frames)
+    lone = torch.zeros(H, W, dtype=torch.bool)
+    lone[3::7, 3::7] = True
+    defects = torch.where(lone.expand(T, H, W), frames + 1.0, frames)
+
+    def share(x):
+        return sporadic_share(*_case(0.0 * depth, res_d=x.mean(0) - depth, depth=depth, frames=x))
+
+    assert share(sporadic) == 1.0
+    assert share(fixed) == 0.0
+    assert share(defects) == 1.0
+    assert share(frames) is None
+
+
+def test_dense_share_leaves_lone_defects_out():
+    """The means' excess spread of a dense random offset is all dense; of lone pixels far off
+    (with a weak dense offset beside them) almost none; the defect pixels are the lone ones."""
+    depth = torch.full((H, W), 2.0, dtype=torch.float64)
+    gen = torch.Generator().manual_seed(4)
+    dense = 3e-4 * torch.randn(H, W, generator=gen, dtype=torch.float64)
+    obs, ctx, pred = _case(0.0 * depth, res_d=dense, depth=depth)
+    assert dense_share(obs, ctx, pred) > 0.99
+    assert int(defect_pixels(obs, ctx, pred).sum()) == 0
+    lone = torch.zeros(H, W, dtype=torch.bool)
+    lone[3::7, 3::7] = True
+    obs, ctx, pred = _case(0.0 * depth, res_d=dense + 0.05 * lone, depth=depth)
+    assert dense_share(obs, ctx, pred) < 0.05
+    assert torch.equal(defect_pixels(obs, ctx, pred), lone)
 
 
 def test_common_share_tells_a_drift_from_outliers():

@@ -15,7 +15,9 @@ import pytest
 
 from tof_fpn_torch.diagnosis import diagnose
 from tof_fpn_torch.diagnosis.incidence import FOV_KEY, INCIDENCE_KEY
-from tof_fpn_torch.diagnosis.run import _baseline, observe
+from tof_fpn_torch.diagnosis.prediction import predict
+from tof_fpn_torch.diagnosis.run import _baseline, _fit_baseline, observe
+from tof_fpn_torch.diagnosis.signature import defect_pixels, dense_share
 
 #: small recordings: H, W, frames
 SIZE = (48, 64, 8)
@@ -71,3 +73,36 @@ def test_a_source_pattern_is_named_vignetting_alone():
     rec, scene = _inputs("vignetting", "led_lambertian", 18)
     d = diagnose(rec, scene, seed=0)
     assert d.effects == ["vignetting"], d.report["effects"]
+
+
+def _shares(family, form, seed):
+    """The baseline fitted to a small recording: its defect pixels and the dense share."""
+    rec, scene = _inputs(family, form, seed)
+    obs = observe(rec, scene)
+    base, ctx, _ = _fit_baseline(_baseline(obs, None), obs)
+    pred = predict(base, obs, scene=ctx.scene)
+    return defect_pixels(obs, ctx, pred), dense_share(obs, ctx, pred)
+
+
+def test_hot_pixels_are_isolated_defects_not_a_dense_offset():
+    """Hot pixels (a dark current of 2-20 ke- in a tap of about 0.4 % of the pixels, fixed in
+    time) are far outside the spread of the other pixels' means and alone among their
+    neighbours: most of the means' excess spread sits on them, so a random offset, delay or
+    gain of every pixel is credited with little of it; on a null nothing is a defect."""
+    hot, dense = _shares("impulsive_pixels", "hot_pixels", 15)
+    assert 3 <= int(hot.sum()) <= 30
+    assert dense is not None and dense < 0.2
+    none, dense0 = _shares("none", "null", 27)
+    assert int(none.sum()) <= 1
+    assert dense0 is None or dense0 > 0.9
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("form", "seed"), [("hot_pixels", 15), ("dark_rts", 16)])
+def test_defect_and_telegraph_pixels_are_named_impulsive(form, seed):
+    """Hot pixels fixed in time (named ``fpn_pattern`` when a random offset of every pixel was
+    credited with them) and dark-current telegraph pixels that jump between two levels from
+    frame to frame (named ``noise_floor``): ``impulsive_pixels`` first."""
+    rec, scene = _inputs("impulsive_pixels", form, seed)
+    d = diagnose(rec, scene, seed=0)
+    assert d.effects[:1] == ["impulsive_pixels"], d.report["effects"]

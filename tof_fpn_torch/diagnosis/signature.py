@@ -13,9 +13,19 @@ it lives, not how large it is:
   layers, so that a depth edge is not taken for fine structure) over the excess variance of the
   residuals themselves, in DN and relative to the amplitude (the smaller: the scene's amplitude
   texture is not the misfit's);
-* **sporadic in time** (:func:`sporadic_share`, ``impulsive_pixels``): impulsive frame-pixels
-  come and go; the share of the frame-pixels beyond ``OUTLIER_Z`` sd that sit on pixels beyond
-  it in at most half the frames (a misfit fixed in time is beyond it in every frame);
+* **sporadic in time or isolated in space** (:func:`sporadic_share`, ``impulsive_pixels``):
+  impulsive frame-pixels come and go; the share of the frame-pixels beyond ``OUTLIER_Z`` sd
+  that sit on pixels beyond it in at most half the frames (a misfit fixed in time is beyond it
+  in every frame), or on defect pixels (:func:`defect_pixels`). A defect pixel -- a hot pixel
+  with the dark current of a crystal defect in a tap (EMVA 1288, defect pixels) -- is fixed in
+  time, but it is rare, independent of its neighbours and of the scene, and far off: its
+  temporal mean lies beyond ``OUTLIER_Z`` times the robust spread of all the pixels' means
+  (a dense read-out pattern's Gaussian spread sets that scale; a hot pixel's dark charge of
+  thousands of electrons is far outside it), and no neighbour is one (a depth edge's mixed
+  pixels, a clipped highlight or a bright patch of multipath are runs of neighbours, never a
+  lone pixel). Such pixels are the outliers of the mixture, not a random offset of every
+  pixel: ``fpn_pixel_offsets`` (:func:`dense_share`) is credited with the excess of the
+  means' spread that the defect pixels do not carry;
 * **common to a frame** (:func:`common_share`, ``temporal_drift`` and its member): a drift
   moves every pixel of a frame together, so the frames' median residuals vary as much as their
   mean residuals; a few outlying pixels move a frame's mean, not its median.
@@ -35,10 +45,14 @@ from .. import constants as K
 
 __all__ = [
     "COURSE_Z",
+    "DEFECT_WINDOW",
     "DEPTH_LAYER_M",
     "FINE_SCALE_PX",
     "OUTLIER_Z",
+    "both_shares",
     "common_share",
+    "defect_pixels",
+    "dense_share",
     "fine_share",
     "sporadic_share",
 ]
@@ -49,6 +63,8 @@ FINE_SCALE_PX: float = 12.0
 DEPTH_LAYER_M: float = 0.1
 #: a frame-pixel this many sd from the model is an outlier
 OUTLIER_Z: float = 5.0
+#: side (px) of the neighbourhood whose means set the robust spread a defect pixel is beyond
+DEFECT_WINDOW: int = 7
 #: a frames' course is established when its covariance between two halves of the pixels is
 #: this many sd above zero
 COURSE_Z: float = 3.0
@@ -165,9 +181,94 @@ def fine_share(obs, ctx, pred, phasor: bool = False) -> float | None:
     return min(shares)
 
 
+def _mean_z(obs, ctx, pred) -> tuple[torch.Tensor, torch.Tensor]:
+    """The temporal means' residuals in sd of the model's mean (its noise and random effects),
+    depth and amplitude (H, W), zero outside ``ctx.mask_d``."""
+    n = obs.n.clamp_min(1)
+    d = obs.m_d - pred.mu_d.detach()
+    if pred.wrap is not None:
+        d = d - pred.wrap * torch.round(d / pred.wrap)
+    tau_d = torch.as_tensor(getattr(pred, "tau_d", 0.0), dtype=torch.float64)
+    tau_a = torch.as_tensor(getattr(pred, "tau_a", 0.0), dtype=torch.float64)
+    zd = d / torch.sqrt(pred.sd_d.detach() ** 2 / n + tau_d.detach() ** 2)
+    za = (obs.m_a - pred.mu_a.detach()) / torch.sqrt(
+        pred.sd_a.detach() ** 2 / n + tau_a.detach() ** 2
+    )
+    m = ctx.mask_d & torch.isfinite(zd) & torch.isfinite(za)
+    zero = torch.zeros_like(zd)
+    return torch.where(m, zd, zero), torch.where(m, za, zero)
+
+
+def _local_robust(z: torch.Tensor, m: torch.Tensor, r: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Median and robust sd (1.4826 MAD) of ``z`` over the pixels ``m`` in the (2 r + 1)^2
+    window about every pixel (H, W each; NaN where the window holds none)."""
+    x = torch.where(m, z, torch.nan)[None, None]
+    x = torch.nn.functional.pad(x, (r, r, r, r), value=float("nan"))
+    win = torch.nn.functional.unfold(x, 2 * r + 1)[0]  # (K, H W)
+    med = win.nanmedian(0).values
+    mad = (win - med).abs().nanmedian(0).values
+    h, w = z.shape
+    return med.view(h, w), (1.4826 * mad).view(h, w)
+
+
+def defect_pixels(obs, ctx, pred) -> torch.Tensor:
+    """Isolated defect pixels (H, W): the temporal mean of depth or amplitude beyond
+    ``OUTLIER_Z`` times the robust spread (1.4826 MAD) of the means in its
+    :data:`DEFECT_WINDOW` neighbourhood about their median (a dense pattern's spread changes
+    over the frame with the light, a dark region's offsets move the phase more), and at least
+    that of all the pixels' means and the noise; no
+    8-neighbour such a pixel, and none of the 3 x 3 pixels on a depth edge of the scene (where
+    a pixel's footprint mixes two surfaces)."""
+    zd, za = _mean_z(obs, ctx, pred)
+    m = ctx.mask_d
+    far = torch.zeros_like(m)
+    if int(m.sum()) < 16:
+        return far
+    for z in (zd, za):
+        med, s = _local_robust(z, m, DEFECT_WINDOW // 2)
+        v = z[m]
+        s_all = 1.4826 * float((v - v.median()).abs().median())
+        far = far | (m & ((z - med).abs() > OUTLIER_Z * s.clamp_min(max(s_all, 1.0))))
+    from ..sim import edge_partners
+
+    edge = (edge_partners(obs.scene_depth.to(torch.float64)) >= 0).view_as(far)
+    return far & (_around(far) < 1.5) & (_around(edge) < 0.5)
+
+
+def _around(x: torch.Tensor) -> torch.Tensor:
+    """How many of the 3 x 3 pixels about every pixel (itself included) ``x`` holds."""
+    f = x.to(torch.float64)[None, None]
+    one = torch.ones(1, 1, 3, 3, dtype=torch.float64)
+    return torch.nn.functional.conv2d(torch.nn.functional.pad(f, (1, 1, 1, 1)), one)[0, 0]
+
+
+def dense_share(obs, ctx, pred) -> float | None:
+    """Share of the excess spread of the temporal means (depth and amplitude, in sd of the
+    model's mean) carried by the pixels that are not isolated defects (None: no excess)."""
+    zd, za = _mean_z(obs, ctx, pred)
+    m = ctx.mask_d
+    if int(m.sum()) < 16:
+        return None
+    e = (zd**2 + za**2 - 2.0).clamp_min(0.0)
+    tot = float(e[m].sum())
+    if not math.isfinite(tot) or tot <= 0:
+        return None
+    return 1.0 - float(e[m & defect_pixels(obs, ctx, pred)].sum()) / tot
+
+
+def both_shares(a: float | None, b: float | None) -> float | None:
+    """The product of two signature shares (either alone where the other is None)."""
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return a * b
+
+
 def sporadic_share(obs, ctx, pred) -> float | None:
     """Share of the outlying frame-pixels (depth or amplitude beyond ``OUTLIER_Z`` sd) on pixels
-    that are outliers in at most half their frames (None: no outlier, or a single frame)."""
+    that are outliers in at most half their frames or are isolated defect pixels
+    (:func:`defect_pixels`; None: no outlier, or a single frame)."""
     if obs.frames < 2:
         return None
     d = obs.depth - pred.mu_d.detach()
@@ -181,7 +282,8 @@ def sporadic_share(obs, ctx, pred) -> float | None:
     if total == 0:
         return None
     n = obs.valid.sum(0).clamp_min(1)
-    return float(count[2 * count <= n].sum()) / total
+    keep = (2 * count <= n) | defect_pixels(obs, ctx, pred)
+    return float(count[keep].sum()) / total
 
 
 def common_share(obs, ctx, pred) -> float | None:

@@ -24,7 +24,7 @@ import torch
 
 from ...sim import FPNPattern
 from ..params import SCALE_DEPTH, ParamSpec
-from ..signature import _fine
+from ..signature import _fine, both_shares, dense_share
 from .base import Term, r4
 
 __all__ = ["FPNPixelDelaysTerm", "fine_depth_share"]
@@ -66,8 +66,12 @@ class FPNPixelDelaysTerm(Term):
         return v["fpn_pixel_delays.sd"] * torch.ones_like(a0)
 
     def signature_share(self, obs, ctx, pred):
-        """A delay per pixel: the share of the depth misfit finer than a smoothing."""
-        return fine_depth_share(obs, ctx, pred)
+        """A delay per pixel: the share of the depth misfit finer than a smoothing, times the
+        share of the means' excess spread not carried by isolated defect pixels (a delay map
+        of every pixel is dense; :func:`~tof_fpn_torch.diagnosis.signature.dense_share`)."""
+        fine = fine_depth_share(obs, ctx, pred)
+        dense = dense_share(obs, ctx, pred)
+        return both_shares(fine, dense)
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         if not bool(ctx.mask_d.any()):

@@ -30,7 +30,7 @@ from ... import constants as K
 from ...sim import PixelOffset
 from ..params import ParamSpec
 from ..readout import READOUT_KEYS, update_readout
-from ..signature import fine_share
+from ..signature import both_shares, dense_share, fine_share
 from .base import Term, r4
 
 __all__ = ["FPNPixelOffsetsTerm"]
@@ -69,8 +69,12 @@ class FPNPixelOffsetsTerm(Term):
 
     def signature_share(self, obs, ctx, pred):
         """Offsets per pixel and column: the share of the phasor's misfit finer than a
-        smoothing."""
-        return fine_share(obs, ctx, pred, phasor=True)
+        smoothing, times the share of the means' excess spread not carried by isolated defect
+        pixels (a random offset of every pixel is dense; a few hot pixels far outside the
+        pattern's spread are outliers, :func:`~tof_fpn_torch.diagnosis.signature.dense_share`)."""
+        fine = fine_share(obs, ctx, pred, phasor=True)
+        dense = dense_share(obs, ctx, pred)
+        return both_shares(fine, dense)
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:
         s = float(pred.s[ctx.mask_d].median()) if bool(ctx.mask_d.any()) else 1.0

@@ -1,6 +1,15 @@
 """``impulsive_pixels``: frame-pixels with no information (random-telegraph pixels, gross read-out
-errors); every frame-pixel's likelihood becomes a mixture ``(1 - r) N_D N_A + r U_D U_A`` with
-uniform densities over the observed depth and amplitude ranges."""
+errors, defect pixels); every frame-pixel's likelihood becomes a mixture
+``(1 - r) N_D N_A + r U_D U_A`` with uniform densities over the observed depth and amplitude
+ranges.
+
+What tells them from a misfit of the model (``signature_share``,
+:func:`~tof_fpn_torch.diagnosis.signature.sporadic_share`): an impulsive frame-pixel comes and
+goes (a telegraph pixel jumps between its levels from frame to frame), or it sits on a defect
+pixel: a hot pixel, whose tap collects the dark charge of a crystal defect (thousands of
+electrons, growing with the exposure), is fixed in time but rare, independent of its neighbours
+and of the scene, and far outside the spread of the other pixels' offsets -- the tail of the
+pixels, not a random offset of every one of them."""
 
 from __future__ import annotations
 
@@ -35,7 +44,8 @@ class ImpulsivePixelsTerm(Term):
         return v["impulsive_pixels.rate"]
 
     def signature_share(self, obs, ctx, pred):
-        """Impulsive frame-pixels come and go: the share of the outliers that are sporadic."""
+        """Impulsive frame-pixels come and go or sit on isolated defect pixels: the share of the
+        outliers that are sporadic or on such pixels."""
         return sporadic_share(obs, ctx, pred)
 
     def initial_values(self, model, obs, ctx, pred) -> list[dict]:

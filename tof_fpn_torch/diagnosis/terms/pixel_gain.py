@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from ...sim import PixelGain
 from ..params import SCALE_CYCLIC, ParamSpec
-from ..signature import fine_share
+from ..signature import both_shares, dense_share, fine_share
 from .base import Term, r4
 
 __all__ = ["TEXTURE_RMS", "PixelGainTerm"]
@@ -36,8 +36,12 @@ class PixelGainTerm(Term):
         return [{"pixel_gain.rms": r} for r in (0.002, 0.01, 0.03)]
 
     def signature_share(self, obs, ctx, pred):
-        """A gain per pixel: the share of the amplitude misfit finer than a smoothing."""
-        return fine_share(obs, ctx, pred)
+        """A gain per pixel: the share of the amplitude misfit finer than a smoothing, times the
+        share of the means' excess spread not carried by isolated defect pixels (a gain of every
+        pixel is dense; :func:`~tof_fpn_torch.diagnosis.signature.dense_share`)."""
+        fine = fine_share(obs, ctx, pred)
+        dense = dense_share(obs, ctx, pred)
+        return both_shares(fine, dense)
 
     def describe(self, model, obs, pred) -> dict:
         return {"rms_percent": r4(model.values["pixel_gain.rms"] * 100)}
