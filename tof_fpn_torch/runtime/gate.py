@@ -173,7 +173,8 @@ def _common_line(
     (``(pi / 2) / n`` of the bands' mean reference power: the variance of a median of ``n``)."""
     b, n = parts.shape[0], parts.shape[1]
     re, im, _ = _line_dft(parts.flatten(0, 1), w0, notches, references)
-    re, im = re.view(b, n, -1), im.view(b, n, -1)
+    f = re.shape[1]
+    re, im = re.view(b, n, f), im.view(b, n, f)
     ref = (re[:, :, 1:] * re[:, :, 1:] + im[:, :, 1:] * im[:, :, 1:]).sum(2) / float(references)
     c_re, c_im = _median(re[:, :, 0]), _median(im[:, :, 0])
     noise = 0.5 * math.pi / float(n) * ref.sum(1) / float(n)
