@@ -100,12 +100,8 @@ def _kernel(gap: int) -> tuple[float, ...]:
     return _KERNELS.get(gap, _WIDE_KERNEL)
 
 
-#: the gaps with which the read-out model is chosen over the offsets: its depth effect follows the
-#: scene's phase and amplitude, so a wide gap's differences also carry what a curved scene's
-#: shading leaves in them. Once chosen, its columns are fitted with the gaps the halves chose for
-#: the offsets' columns: second differences of neighbours alone hardly see a profile's low
-#: frequencies (on noise-free slanted planes with a white complex offset they recovered nothing
-#: below a tenth of the Nyquist frequency, gaps of 4 or 8 most of it)
+#: the gaps of a read-out offset's fit: its depth effect follows the scene's phase and amplitude,
+#: so a wide gap's differences also carry what a curved scene's shading leaves in them
 READOUT_GAPS: tuple[int, ...] = (1,)
 #: the least-squares start leaves out second differences beyond this many robust spreads
 START_CLIP = 5.0
@@ -583,9 +579,10 @@ def _learn(
     leave, pixels on what both leave; ``columns`` is (K, W). A profile is the same down its
     columns (along its rows): it is fitted on at most :data:`PROFILE_LINES` rows (columns) of
     each frame. ``gaps``: per axis (``columns``, ``rows``) the gaps of the differences
-    (default :data:`GAPS`, a read-out's columns too); the pixels take both axes' gaps."""
+    (default :data:`GAPS`; a read-out's columns always :data:`READOUT_GAPS`); the pixels take
+    both axes' gaps."""
     gaps = gaps or {}
-    g_col = gaps.get("columns", GAPS)
+    g_col = READOUT_GAPS if basis is not None else gaps.get("columns", GAPS)
     g_row = gaps.get("rows", GAPS)
     b = torch.ones_like(d)[None] if basis is None else basis
     rows = slice(None, None, max(1, d.shape[1] // PROFILE_LINES))
