@@ -101,7 +101,11 @@ def _kernel(gap: int) -> tuple[float, ...]:
 
 
 #: the gaps of a read-out offset's fit: its depth effect follows the scene's phase and amplitude,
-#: so a wide gap's differences also carry what a curved scene's shading leaves in them
+#: so a wide gap's differences also carry what a curved scene's shading leaves in them (the gaps
+#: chosen for the offsets' columns lifted the complex read-out's boxes by 0.41 dB, but cost a
+#: cylinders frame with stripes as a complex offset 0.40 dB, its record claiming 13 dB). Second
+#: differences of neighbours alone hardly see the profile's lowest frequencies: below a tenth of
+#: the Nyquist frequency nothing of a white complex offset's profile is recovered
 READOUT_GAPS: tuple[int, ...] = (1,)
 #: the least-squares start leaves out second differences beyond this many robust spreads
 START_CLIP = 5.0
