@@ -20,7 +20,8 @@ Statistic, per image, orientation and notch (torch only, exportable: sums, no so
 3. ``T = P(w0) / mean P(ref)``. Without a line at ``w0`` (any smooth local spectrum) ``T`` follows
    ``F(2, 2R)``, ``P(T > t) = (1 + t / R)^-R``; the gate opens above the threshold of false-alarm
    probability ``a`` (:data:`FALSE_ALARM`, 1e-3 per notch and image), fully at twice it.
-4. A floor in depth units: the line's amplitude ``a_hat`` must be at least ``min_stripe`` (:data:`~tof_fpn_torch.constants.GATE_MIN_STRIPE`) times the per-pixel
+4. A floor in depth units: the line's amplitude ``a_hat`` must be at least ``min_stripe``
+   (:data:`~tof_fpn_torch.constants.GATE_MIN_STRIPE`) times the per-pixel
    noise ``s / sqrt(g_e)`` (``g_e = ||delta - h||^2``), fully at twice that.
 
 ``a_hat`` is what both of two estimates allow (the smaller): the profile's ``P(w0) - mean
@@ -259,13 +260,14 @@ def line_gate(
             parts.append(
                 _profile(xk.narrow(avg_dim, lo, hi - lo), k.narrow(avg_dim, lo, hi - lo), avg_dim)
             )
+        bands_p = torch.stack(parts, 1) if len(parts) >= 2 else p.unsqueeze(1)  # (B, nb, L)
         for w0 in notches:
             p0, ref, wsum = _line_power(p, w0, notches, references)
             t = p0 / ref.clamp_min(1e-30)
             scale = 1.0 if abs(w0 - math.pi) < 1e-9 else 0.5  # a cos at w0 < pi: half in w0
             amp = (p0 - ref).clamp_min(0.0).sqrt() / (scale * wsum)
             if len(parts) >= 2:
-                line = _common_line(torch.stack(parts, 1), w0, notches, references)
+                line = _common_line(bands_p, w0, notches, references)
                 amp = torch.minimum(amp, line / (scale * wsum))
             power = power + amp * amp * (1.0 if scale == 1.0 else 0.5)  # per pixel
             g = ((t - t_a) / t_a).clamp(0.0, 1.0)
